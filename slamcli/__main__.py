@@ -1,0 +1,3 @@
+from slamcli.cli.app import main
+
+main()

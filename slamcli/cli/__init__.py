@@ -1,0 +1,1 @@
+"""The command-line interface. Each command: parse -> one library call -> render."""

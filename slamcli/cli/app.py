@@ -1,0 +1,54 @@
+"""The ``slamcli`` typer application."""
+
+from __future__ import annotations
+
+import typer
+
+from slamcli import __version__
+from slamcli.cli import render
+
+app = typer.Typer(
+    name="slamcli",
+    help=(
+        "Turn recorded robot and camera logs into trajectories, meshes, maps and paths.\n\n"
+        "Exit codes: 0 ok, 1 bad input or config, 2 usage, 3 finished but lost data."
+    ),
+    no_args_is_help=True,
+    rich_markup_mode="rich",
+    pretty_exceptions_enable=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        render.out.print(f"slamcli {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    verbose: int = typer.Option(
+        0, "--verbose", "-v", count=True, help="More log output (-v info, -vv debug)."
+    ),
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
+    render.setup_logging(verbose)
+
+
+def _register() -> None:
+    # Command modules import only light things at import time; heavy libraries load inside
+    # the command functions, so `slamcli --help` starts fast.
+    from slamcli.cli import demo, evaluate, info, synth
+
+    for module in (info, evaluate, synth, demo):
+        module.register(app)
+
+
+_register()
+
+
+def main() -> None:
+    app()

@@ -1,0 +1,124 @@
+"""All terminal output: messages, tables, progress bars and JSON.
+
+Results go to stdout; messages, warnings and progress go to stderr, so ``--json`` output
+stays a single clean JSON document.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import logging
+import sys
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from slamcli.errors import SlamcliError
+from slamcli.types import ProgressFn
+
+out = Console(highlight=False, soft_wrap=True)
+err = Console(stderr=True, highlight=False, soft_wrap=True)
+
+
+class _StderrHandler(logging.Handler):
+    _STYLE: ClassVar[dict[str, str]] = {"WARNING": "yellow", "ERROR": "red", "CRITICAL": "red"}
+
+    def emit(self, record: logging.LogRecord) -> None:
+        level = record.levelname
+        style = self._STYLE.get(level, "dim")
+        err.print(f"[{style}]{level.lower()}:[/] {escape(record.getMessage())}")
+
+
+def setup_logging(verbose: int) -> None:
+    """Route the library's log records to stderr: warnings by default, -v info, -vv debug."""
+    level = logging.WARNING if verbose <= 0 else logging.INFO if verbose == 1 else logging.DEBUG
+    root = logging.getLogger("slamcli")
+    for h in list(root.handlers):
+        if isinstance(h, _StderrHandler):
+            root.removeHandler(h)
+    root.addHandler(_StderrHandler())
+    root.setLevel(level)
+
+
+def error(exc: SlamcliError) -> None:
+    """The one-line red error, plus its hint on a second line."""
+    err.print(f"[bold red]error:[/] {escape(exc.msg)}")
+    if exc.hint:
+        err.print(f"[dim]hint:[/] {escape(exc.hint)}")
+
+
+def warn(msg: str) -> None:
+    err.print(f"[yellow]warning:[/] {escape(msg)}")
+
+
+def note(msg: str) -> None:
+    err.print(escape(msg))
+
+
+def print_json(data: Any) -> None:
+    """Exactly one JSON document on stdout."""
+    sys.stdout.write(json.dumps(data, indent=2) + "\n")
+    sys.stdout.flush()
+
+
+def table(
+    title: str | None,
+    columns: Sequence[str],
+    rows: Sequence[Sequence[Any]],
+    right_align: Sequence[str] = (),
+) -> None:
+    t = Table(title=title, title_justify="left", show_edge=False, header_style="bold")
+    for c in columns:
+        t.add_column(c, justify="right" if c in right_align else "left")
+    for r in rows:
+        t.add_row(*(escape(str(v)) for v in r))
+    out.print(t)
+
+
+def key_values(title: str | None, items: Mapping[str, Any]) -> None:
+    t = Table(title=title, title_justify="left", show_header=False, show_edge=False, box=None)
+    t.add_column(style="bold")
+    t.add_column()
+    for k, v in items.items():
+        t.add_row(escape(str(k)), escape(str(v)))
+    out.print(t)
+
+
+def written(paths: Sequence[str | Path], title: str = "Written") -> None:
+    table(title, ["file", "bytes"], [[str(p), Path(p).stat().st_size] for p in paths], ["bytes"])
+
+
+@contextlib.contextmanager
+def progress(description: str, total: int | None = None) -> Iterator[ProgressFn]:
+    """A progress bar on stderr (terminal only); yields a ``progress(done, total)`` callback."""
+    from rich.progress import (
+        BarColumn,
+        MofNCompleteColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    bar = Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=err,
+        transient=True,
+        disable=not err.is_terminal,
+    )
+    with bar:
+        task = bar.add_task(description, total=total)
+
+        def update(done: int, total_now: int | None = None) -> None:
+            bar.update(task, completed=done, total=total_now if total_now is not None else total)
+
+        yield update

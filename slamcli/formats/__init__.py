@@ -1,0 +1,35 @@
+"""Everything that reads or writes bytes: input sources and output formats."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from slamcli.errors import InputError, UnknownFormatError
+from slamcli.formats.base import Frame, ReadStats, Source, SourceInfo, StreamInfo
+from slamcli.formats.tum_rgbd import TumRgbdSource
+
+SOURCES: dict[str, Any] = {"tum": TumRgbdSource}
+"""Source classes by format name; each has ``sniff(path) -> bool`` and ``open(path, **options)``."""
+
+
+def open_source(path: str | Path, format: str = "auto", **options: Any) -> Source:
+    """Open an input log as a :class:`Source`.
+
+    ``format="auto"`` sniffs cheaply (suffix, magic bytes, folder layout). Options are passed to
+    the source class (e.g. ``max_dt``, ``depth_factor``, ``camera`` for TUM folders).
+    """
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"{p}: no such file or folder")
+    if format != "auto":
+        if format not in SOURCES:
+            raise UnknownFormatError(p, sorted(SOURCES), f"unknown format {format!r}")
+        return SOURCES[format].open(p, **options)
+    for cls in SOURCES.values():
+        if cls.sniff(p):
+            return cls.open(p, **options)
+    raise UnknownFormatError(p, sorted(SOURCES), "a TUM RGB-D folder has rgb.txt and depth.txt")
+
+
+__all__ = ["SOURCES", "Frame", "ReadStats", "Source", "SourceInfo", "StreamInfo", "open_source"]

@@ -1,0 +1,88 @@
+"""The Source protocol every input format implements, and what ``info`` reports."""
+
+from __future__ import annotations
+
+from collections.abc import Collection, Iterator
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from types import TracebackType
+from typing import Any, Protocol
+
+from slamcli.types import (
+    ImageFrame,
+    ImuFrame,
+    LandmarkFrame,
+    OdometryFrame,
+    PinholeCamera,
+    ProgressFn,
+    RgbdFrame,
+    Trajectory,
+)
+
+Frame = RgbdFrame | ImageFrame | OdometryFrame | LandmarkFrame | ImuFrame
+"""Frame kinds, by the name a pipeline asks for: rgbd, image, odometry, landmarks, imu."""
+
+
+@dataclass
+class StreamInfo:
+    """One stream of a source (a list file, a topic)."""
+
+    name: str
+    kind: str
+    count: int
+    rate_hz: float | None = None
+    start_s: float | None = None
+    end_s: float | None = None
+    detail: str = ""
+
+
+@dataclass
+class SourceInfo:
+    """What ``slamcli info`` prints; ``to_dict`` gives its JSON form."""
+
+    format: str
+    path: str
+    streams: list[StreamInfo]
+    frames: int
+    groundtruth: int
+    camera: PinholeCamera | None = None
+    camera_source: str = ""
+    problems: list[str] = field(default_factory=list)
+    details: dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["camera"] = self.camera.to_dict() if self.camera else None
+        return d
+
+
+@dataclass
+class ReadStats:
+    """What reading frames cost: frames yielded, skipped (with the names), lost."""
+
+    read: int = 0
+    skipped: int = 0
+    skipped_names: list[str] = field(default_factory=list)
+
+
+class Source(Protocol):
+    """An input log. Use as a context manager; frames are produced lazily."""
+
+    format_name: str
+    path: Path
+    stats: ReadStats
+
+    def __enter__(self) -> Source: ...
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None: ...
+
+    def info(self, deep: bool = False, progress: ProgressFn | None = None) -> SourceInfo: ...
+
+    def frames(self, kinds: Collection[str] = ("rgbd",)) -> Iterator[Frame]: ...
+
+    def groundtruth(self) -> Trajectory | None: ...

@@ -1,0 +1,74 @@
+"""Line-oriented text files: comments, blank lines, CRLF, and exact timestamps."""
+
+from __future__ import annotations
+
+import math
+import re
+from collections.abc import Iterator
+from pathlib import Path
+
+from slamcli.errors import FormatError, InputError
+
+_STAMP = re.compile(r"^[+-]?(\d+)(?:\.(\d*))?(?:[eE]([+-]?\d+))?$")
+
+
+def iter_data_lines(
+    path: str | Path, comment: str = "#", delimiter: str | None = None
+) -> Iterator[tuple[int, list[str]]]:
+    """Yield ``(line_number, fields)`` for every non-blank, non-comment line (1-based numbers).
+
+    Handles CRLF and a UTF-8 byte-order mark. ``delimiter=None`` splits on any whitespace.
+    """
+    p = Path(path)
+    try:
+        with p.open("r", encoding="utf-8-sig", newline=None) as fh:
+            for number, line in enumerate(fh, start=1):
+                text = line.strip()
+                if not text or text.startswith(comment):
+                    continue
+                fields = text.split(delimiter) if delimiter else text.split()
+                yield number, [f.strip() for f in fields]
+    except FileNotFoundError:
+        raise InputError(f"{p}: no such file") from None
+    except IsADirectoryError:
+        raise InputError(f"{p}: is a folder, expected a file") from None
+    except UnicodeDecodeError as exc:
+        raise FormatError(p, f"not a text file ({exc.reason} at byte {exc.start})") from None
+    except OSError as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+
+
+def parse_stamp_ns(text: str, path: str | Path, line: int) -> int:
+    """Parse a timestamp in seconds (``1305031235.861603``, ``1.3e9``) to exact int64 ns.
+
+    Decimal strings are converted digit by digit, so no precision is lost to float64.
+    """
+    m = _STAMP.match(text)
+    if not m:
+        raise FormatError(path, f"timestamp {text!r} is not a number", line)
+    whole, frac, exp = m.group(1), m.group(2) or "", m.group(3)
+    if exp is not None:
+        value = float(text)
+        if not math.isfinite(value):
+            raise FormatError(path, f"timestamp {text!r} is not finite", line)
+        return round(value * 1e9)
+    ns = int(whole) * 1_000_000_000 + int((frac + "000000000")[:9])
+    if len(frac) > 9 and int(frac[9]) >= 5:
+        ns += 1
+    return -ns if text.startswith("-") else ns
+
+
+def parse_floats(
+    fields: list[str], path: str | Path, line: int, what: str = "value"
+) -> list[float]:
+    """Convert fields to finite floats, naming the file, line and column on failure."""
+    out: list[float] = []
+    for col, f in enumerate(fields, start=1):
+        try:
+            v = float(f)
+        except ValueError:
+            raise FormatError(path, f"column {col}: {what} {f!r} is not a number", line) from None
+        if not math.isfinite(v):
+            raise FormatError(path, f"column {col}: {what} {f!r} is not finite", line)
+        out.append(v)
+    return out

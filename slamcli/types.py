@@ -1,0 +1,224 @@
+"""Core records shared by every module. numpy and the standard library only.
+
+Conventions: poses are ``(N, 4, 4)`` float64 stacks named by their frames
+(``world_from_body`` maps body coordinates into the world); times are int64 nanoseconds;
+lengths are metres; images are ``(H, W, 3)`` uint8 RGB; depth is ``(H, W)`` float32 metres
+with 0 or NaN meaning no reading.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+ProgressFn = Callable[[int, "int | None"], None]
+"""Progress callback: ``progress(done, total)``; total is None when unknown."""
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A timed sequence of rigid poses.
+
+    Attributes:
+        stamps_ns: (N,) int64 nanoseconds, strictly increasing.
+        world_from_body: (N, 4, 4) float64 homogeneous transforms.
+    """
+
+    stamps_ns: NDArray[np.int64]
+    world_from_body: NDArray[np.float64]
+
+    def __post_init__(self) -> None:
+        stamps = np.asarray(self.stamps_ns, dtype=np.int64).reshape(-1)
+        poses = np.asarray(self.world_from_body, dtype=np.float64)
+        if poses.ndim != 3 or poses.shape[1:] != (4, 4) or poses.shape[0] != stamps.shape[0]:
+            raise ValueError(
+                f"Trajectory needs (N,) stamps and (N,4,4) poses, got {stamps.shape} and "
+                f"{poses.shape}"
+            )
+        if stamps.size > 1 and not np.all(np.diff(stamps) > 0):
+            raise ValueError("Trajectory stamps must be strictly increasing")
+        object.__setattr__(self, "stamps_ns", stamps)
+        object.__setattr__(self, "world_from_body", poses)
+
+    def __len__(self) -> int:
+        return int(self.stamps_ns.shape[0])
+
+    @property
+    def positions(self) -> NDArray[np.float64]:
+        """(N, 3) translation part in metres."""
+        return self.world_from_body[:, :3, 3]
+
+    @property
+    def stamps_s(self) -> NDArray[np.float64]:
+        """(N,) float64 seconds (for display and file edges only)."""
+        return self.stamps_ns.astype(np.float64) * 1e-9
+
+    def path_length(self) -> float:
+        """Total travelled distance in metres."""
+        if len(self) < 2:
+            return 0.0
+        return float(np.linalg.norm(np.diff(self.positions, axis=0), axis=1).sum())
+
+    def subset(self, index: NDArray[Any]) -> Trajectory:
+        """The poses selected by a boolean mask or an increasing integer index."""
+        return Trajectory(self.stamps_ns[index], self.world_from_body[index])
+
+
+@dataclass(frozen=True)
+class PinholeCamera:
+    """A pinhole camera with OpenCV's distortion model (k1, k2, p1, p2[, k3, ...])."""
+
+    width: int
+    height: int
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    distortion: tuple[float, ...] = ()
+
+    @property
+    def K(self) -> NDArray[np.float64]:
+        """(3, 3) intrinsic matrix."""
+        return np.array(
+            [[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]], dtype=np.float64
+        )
+
+    @property
+    def is_distorted(self) -> bool:
+        return any(abs(d) > 0.0 for d in self.distortion)
+
+    def undistorted(self) -> PinholeCamera:
+        """The same camera with its distortion removed (what an undistorted image follows)."""
+        return PinholeCamera(self.width, self.height, self.fx, self.fy, self.cx, self.cy, ())
+
+    def scaled(self, factor: float) -> PinholeCamera:
+        """The camera for an image resized by ``factor`` (pixel-centre convention)."""
+        return PinholeCamera(
+            round(self.width * factor),
+            round(self.height * factor),
+            self.fx * factor,
+            self.fy * factor,
+            (self.cx + 0.5) * factor - 0.5,
+            (self.cy + 0.5) * factor - 0.5,
+            self.distortion,
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "width": self.width,
+            "height": self.height,
+            "fx": self.fx,
+            "fy": self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+            "distortion": list(self.distortion),
+        }
+
+
+@dataclass(frozen=True)
+class RgbdFrame:
+    """A colour image with registered depth.
+
+    Attributes:
+        stamp_ns: int64 nanoseconds of the colour image.
+        rgb: (H, W, 3) uint8 RGB.
+        depth_m: (H, W) float32 metres, 0 or NaN = no reading.
+        camera: intrinsics both images follow.
+        depth_stamp_ns: stamp of the depth image it was paired with.
+        name: where the frame came from (file name, topic and index), for messages.
+    """
+
+    stamp_ns: int
+    rgb: NDArray[np.uint8]
+    depth_m: NDArray[np.float32]
+    camera: PinholeCamera
+    depth_stamp_ns: int | None = None
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class ImageFrame:
+    """A colour or grey image. ``image`` is (H, W, 3) uint8 RGB or (H, W) uint8."""
+
+    stamp_ns: int
+    image: NDArray[np.uint8]
+    camera: PinholeCamera | None = None
+    name: str = ""
+
+
+@dataclass(frozen=True)
+class OdometryFrame:
+    """Odometry: a body velocity (v m/s forward, omega rad/s yaw rate) and/or a pose.
+
+    ``world_from_body`` is (4, 4) float64 when the source reports a pose.
+    """
+
+    stamp_ns: int
+    v: float | None = None
+    omega: float | None = None
+    world_from_body: NDArray[np.float64] | None = None
+
+
+@dataclass(frozen=True)
+class LandmarkFrame:
+    """Range-bearing observations taken at one instant.
+
+    Attributes:
+        ids: (M,) int64 landmark ids, -1 where the correspondence is unknown.
+        ranges_m: (M,) float64 metres.
+        bearings_rad: (M,) float64 radians, counter-clockwise from the robot's heading.
+    """
+
+    stamp_ns: int
+    ids: NDArray[np.int64]
+    ranges_m: NDArray[np.float64]
+    bearings_rad: NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class ImuFrame:
+    """Inertial measurement. Either part may be missing (an accelerometer-only log)."""
+
+    stamp_ns: int
+    accel_mps2: NDArray[np.float64] | None = None
+    gyro_radps: NDArray[np.float64] | None = None
+
+
+@dataclass(frozen=True)
+class TriangleMesh:
+    """vertices (V, 3) float64 metres, faces (F, 3) int64, vertex_colors (V, 3) uint8 or None."""
+
+    vertices: NDArray[np.float64]
+    faces: NDArray[np.int64]
+    vertex_colors: NDArray[np.uint8] | None = None
+
+
+@dataclass(frozen=True)
+class OccupancyGrid:
+    """prob (H, W) float32 occupancy probability, NaN = unknown; row 0 is the lowest y.
+
+    ``origin_xy_yaw`` is the pose of cell (0, 0)'s lower-left corner in the world (m, m, rad).
+    """
+
+    prob: NDArray[np.float32]
+    resolution_m: float
+    origin_xy_yaw: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+
+@dataclass
+class SlamResult:
+    """What a pipeline produces; every field is optional. metrics and counts go to run.json."""
+
+    trajectory: Trajectory | None = None
+    keyframes: Trajectory | None = None
+    landmarks: NDArray[np.float64] | None = None
+    points: NDArray[np.float64] | None = None
+    point_colors: NDArray[np.uint8] | None = None
+    mesh: TriangleMesh | None = None
+    grid: OccupancyGrid | None = None
+    metrics: dict[str, Any] = field(default_factory=dict)
+    counts: dict[str, int] = field(default_factory=dict)

@@ -1,0 +1,92 @@
+"""The CLI skeleton: version, help, start-up imports and the error boundary."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import typer
+from typer.testing import CliRunner
+
+from slamcli import __version__
+from slamcli.cli.app import app
+from slamcli.cli.common import boundary
+from slamcli.errors import ConfigError, DataLossError, InputError
+
+runner = CliRunner()
+HEAVY = ("open3d", "pycolmap", "trimesh", "matplotlib", "cv2")
+
+
+def _modules_loaded_by(args: list[str]) -> set[str]:
+    code = (
+        "import sys\n"
+        "from slamcli.cli.app import app\n"
+        "try:\n"
+        f"    app({args!r})\n"
+        "except SystemExit:\n"
+        "    pass\n"
+        f"print(','.join(m for m in {HEAVY!r} if m in sys.modules))\n"
+    )
+    res = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=60
+    )
+    last = res.stdout.strip().splitlines()[-1] if res.stdout.strip() else ""
+    return {m for m in last.split(",") if m in HEAVY}
+
+
+def test_help_imports_no_heavy_library() -> None:
+    assert _modules_loaded_by(["--help"]) == set()
+
+
+def test_every_command_help_imports_no_heavy_library() -> None:
+    for cmd in (
+        ["info", "--help"],
+        ["eval", "--help"],
+        ["synth", "rgbd", "--help"],
+        ["demo", "--help"],
+    ):
+        assert _modules_loaded_by(cmd) == set(), cmd
+
+
+def test_version() -> None:
+    res = runner.invoke(app, ["--version"])
+    assert res.exit_code == 0
+    assert res.stdout.strip() == f"slamcli {__version__}"
+
+
+def test_help_lists_the_commands_and_exit_codes() -> None:
+    res = runner.invoke(app, ["--help"])
+    assert res.exit_code == 0
+    for word in ("info", "eval", "synth", "demo", "Exit codes"):
+        assert word in res.stdout
+
+
+def test_unknown_option_is_a_usage_error() -> None:
+    res = runner.invoke(app, ["info", "--no-such-option"])
+    assert res.exit_code == 2
+
+
+def _cli_raising(exc: Exception) -> typer.Typer:
+    t = typer.Typer()
+
+    @t.command()
+    @boundary
+    def go() -> None:
+        raise exc
+
+    return t
+
+
+def test_boundary_maps_errors_to_exit_codes_and_one_line_messages() -> None:
+    cases = [
+        (InputError("data.txt:3: bad line", hint="fix it"), 1),
+        (ConfigError("dense.voxel_m: must be > 0"), 1),
+        (DataLossError("2 frames lost"), 3),
+    ]
+    for exc, code in cases:
+        res = runner.invoke(_cli_raising(exc), [])
+        assert res.exit_code == code
+        assert f"error: {exc.msg}" in res.output
+        assert "Traceback" not in res.output
+    res = runner.invoke(_cli_raising(InputError("x", hint="fix it")), [])
+    assert "hint: fix it" in res.output
