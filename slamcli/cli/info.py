@@ -1,0 +1,157 @@
+"""``slamcli info``: what an input log holds and what is wrong with it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated, Any
+
+import typer
+from rich.markup import escape
+
+from slamcli.cli import render
+from slamcli.cli.common import boundary
+from slamcli.cli.source_options import (
+    DEFAULTS,
+    CameraOpt,
+    Cx,
+    Cy,
+    DepthFactor,
+    DtOffset,
+    Fx,
+    Fy,
+    MaxDt,
+    SourceOptions,
+    Strict,
+    Undistort,
+)
+from slamcli.errors import DataLossError
+
+if TYPE_CHECKING:
+    from slamcli.formats.base import SourceInfo
+    from slamcli.types import PinholeCamera
+
+HELP = """Show what an input holds: streams, paired RGB-D frames, camera, ground truth, problems.
+
+Exit codes: 0 ok; 1 bad input (with --strict, also an unreadable image); 3 some listed images \
+are missing or (with --deep) cannot be decoded, so reading would skip frames.
+"""
+
+
+def register(app: typer.Typer) -> None:
+    app.command("info", help=HELP, rich_help_panel="Inspect")(info)
+
+
+@boundary
+def info(
+    input: Annotated[
+        Path, typer.Argument(help="A TUM RGB-D folder or an MCAP file.", show_default=False)
+    ],
+    deep: Annotated[
+        bool, typer.Option("--deep", help="Decode every image (slow) to find unreadable ones.")
+    ] = False,
+    json_out: Annotated[
+        bool, typer.Option("--json", help="Print one JSON object on stdout instead of tables.")
+    ] = False,
+    max_dt: MaxDt = DEFAULTS.max_dt,
+    dt_offset: DtOffset = DEFAULTS.dt_offset,
+    depth_factor: DepthFactor = None,
+    camera: CameraOpt = None,
+    fx: Fx = None,
+    fy: Fy = None,
+    cx: Cx = None,
+    cy: Cy = None,
+    undistort: Undistort = False,
+    strict: Strict = False,
+) -> None:
+    from slamcli.formats import open_source
+
+    opts = SourceOptions(max_dt, dt_offset, depth_factor, camera, fx, fy, cx, cy, undistort, strict)
+    with open_source(input, **opts.open_kwargs()) as source:
+        if deep:
+            with render.progress("decoding images") as progress:
+                result = source.info(deep=True, progress=progress)
+        else:
+            result = source.info()
+    if json_out:
+        render.print_json(result.to_dict())
+    else:
+        _show(result)
+    unreadable = result.details.get("unreadable") or []
+    if unreadable:
+        raise DataLossError(
+            f"{input}: {len(unreadable)} listed image(s) missing or unreadable",
+            hint="reading skips those frames; --strict stops at the first one instead",
+        )
+
+
+def _show(info: SourceInfo) -> None:
+    rows = [
+        [
+            s.name,
+            s.count,
+            f"{s.rate_hz:.1f}" if s.rate_hz else "-",
+            _span(s.start_s, s.end_s),
+            s.detail,
+        ]
+        for s in info.streams
+    ]
+    render.table(
+        f"{info.format}: {info.path}",
+        ["stream", "count", "rate Hz", "span s", "from"],
+        rows,
+        right_align=["count", "rate Hz", "span s"],
+    )
+    d = info.details
+    items: dict[str, Any] = {"frames": f"{info.frames} paired RGB-D frames"}
+    if "unmatched_rgb" in d:
+        items["unmatched"] = (
+            f"colour {d['unmatched_rgb']}, depth {d['unmatched_depth']} "
+            f"(max dt {d['max_dt_s']:g} s, offset {d['dt_offset_s']:g} s)"
+        )
+    if "pair_dt_ms" in d:
+        items["pair dt"] = (
+            f"median {d['pair_dt_ms']['median']:.1f} ms, max {d['pair_dt_ms']['max']:.1f} ms"
+        )
+    if info.camera is not None:
+        items["camera"] = _camera(info.camera)
+        items["camera from"] = info.camera_source
+    if "depth_factor" in d:
+        items["depth factor"] = f"{d['depth_factor']:g} per metre ({d['depth_factor_source']})"
+    check = d.get("depth_check") or {}
+    if "median_m" in check:
+        items["depth"] = (
+            f"median {check['median_m']:.2f} m "
+            f"(5-95 %: {check['p5_m']:.2f}-{check['p95_m']:.2f} m), "
+            f"{check['valid_fraction']:.0%} valid, from {check['samples']} sampled images"
+        )
+    items["ground truth"] = _groundtruth(info)
+    render.key_values(None, items)
+    if info.problems:
+        for p in info.problems:
+            render.out.print(f"[yellow]problem:[/] {escape(p)}")
+    else:
+        render.out.print("[green]no problems found[/]")
+
+
+def _span(start: float | None, end: float | None) -> str:
+    return f"{end - start:.2f}" if start is not None and end is not None else "-"
+
+
+def _camera(cam: PinholeCamera) -> str:
+    text = f"{cam.width}x{cam.height} fx {cam.fx:g} fy {cam.fy:g} cx {cam.cx:g} cy {cam.cy:g}"
+    if cam.is_distorted:
+        text += ", distortion " + " ".join(f"{c:g}" for c in cam.distortion)
+    return text
+
+
+def _groundtruth(info: SourceInfo) -> str:
+    if not info.groundtruth:
+        return "none"
+    text = f"{info.groundtruth} poses"
+    coverage = info.details.get("groundtruth_coverage")
+    if coverage is not None:
+        text += (
+            f"; {info.details['groundtruth_covered']} of {info.frames} frames ({coverage:.0%}) "
+            "have a pose within 0.02 s"
+        )
+    return text

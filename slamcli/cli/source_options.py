@@ -1,0 +1,130 @@
+"""Options shared by every command that reads an RGB-D source (``info``, ``run dense``, ...).
+
+A command declares the options with the ``Annotated`` aliases below and their defaults from
+:data:`DEFAULTS`, then hands them to :class:`SourceOptions`::
+
+    def cmd(
+        input: Path,
+        max_dt: MaxDt = DEFAULTS.max_dt,
+        dt_offset: DtOffset = DEFAULTS.dt_offset,
+        depth_factor: DepthFactor = None,
+        camera: CameraOpt = None,
+        fx: Fx = None, fy: Fy = None, cx: Cx = None, cy: Cy = None,
+        undistort: Undistort = False,
+        strict: Strict = False,
+    ) -> None:
+        opts = SourceOptions(max_dt, dt_offset, depth_factor, camera, fx, fy, cx, cy,
+                             undistort, strict)
+        with open_source(input, **opts.open_kwargs()) as source: ...
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+from typing import Annotated, Any
+
+import typer
+
+PANEL = "Input options"
+
+MaxDt = Annotated[
+    float,
+    typer.Option(
+        "--max-dt",
+        help="Pair colour and depth images less than this many seconds apart (TUM associate.py).",
+        rich_help_panel=PANEL,
+    ),
+]
+DtOffset = Annotated[
+    float,
+    typer.Option(
+        "--dt-offset",
+        help="Seconds added to depth stamps before pairing (associate.py's --offset).",
+        rich_help_panel=PANEL,
+    ),
+]
+DepthFactor = Annotated[
+    float | None,
+    typer.Option(
+        "--depth-factor",
+        help="Raw depth units per metre (TUM 5000, millimetres 1000). "
+        "Default: the camera file's, else 5000.",
+        show_default=False,
+        rich_help_panel=PANEL,
+    ),
+]
+CameraOpt = Annotated[
+    str | None,
+    typer.Option(
+        "--camera",
+        help="Camera preset (fr1, fr2, fr3, ros-default) or a camera file (.yaml/.json). "
+        "Default: camera.yaml/.json next to the data, else the preset in the folder name, "
+        "else ros-default.",
+        show_default=False,
+        rich_help_panel=PANEL,
+    ),
+]
+
+
+def _intrinsic(flag: str, what: str) -> Any:
+    return typer.Option(
+        flag,
+        help=f"{what} in pixels; give all of --fx --fy --cx --cy to override the camera.",
+        show_default=False,
+        rich_help_panel=PANEL,
+    )
+
+
+Fx = Annotated[float | None, _intrinsic("--fx", "Focal length x")]
+Fy = Annotated[float | None, _intrinsic("--fy", "Focal length y")]
+Cx = Annotated[float | None, _intrinsic("--cx", "Principal point x")]
+Cy = Annotated[float | None, _intrinsic("--cy", "Principal point y")]
+Undistort = Annotated[
+    bool,
+    typer.Option(
+        "--undistort",
+        help="Remove lens distortion from colour (and registered depth) using the camera's "
+        "distortion coefficients.",
+        rich_help_panel=PANEL,
+    ),
+]
+Strict = Annotated[
+    bool,
+    typer.Option(
+        "--strict",
+        help="Stop at the first missing or unreadable image instead of skipping it.",
+        rich_help_panel=PANEL,
+    ),
+]
+
+
+@dataclass(frozen=True)
+class SourceOptions:
+    """The shared source options, as given on the command line (None = not given)."""
+
+    max_dt: float = 0.02
+    dt_offset: float = 0.0
+    depth_factor: float | None = None
+    camera: str | None = None
+    fx: float | None = None
+    fy: float | None = None
+    cx: float | None = None
+    cy: float | None = None
+    undistort: bool = False
+    strict: bool = False
+
+    def open_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for :func:`slamcli.formats.open_source`.
+
+        Only options that differ from their defaults are passed, so a format that takes fewer
+        options is not handed ones the user never set.
+        """
+        return {
+            f.name: getattr(self, f.name)
+            for f in fields(self)
+            if getattr(self, f.name) != getattr(DEFAULTS, f.name)
+        }
+
+
+DEFAULTS = SourceOptions()
+"""Default values, for commands' parameter defaults."""

@@ -1,0 +1,713 @@
+"""TUM RGB-D folders: ``rgb.txt``, ``depth.txt``, ``groundtruth.txt``, ``accelerometer.txt``.
+
+A folder holds list files of ``timestamp filename`` lines and the PNGs they name: 8-bit colour
+and 16-bit depth registered to the colour camera (value / depth factor = metres, 0 = no
+reading). Colour and depth are paired exactly like TUM's ``associate.py``: every pair with
+``|t_rgb - (t_depth + dt_offset)| < max_dt`` is a candidate, candidates are taken in order of
+increasing ``|Δt|`` and each image is used at most once.
+
+Ground-truth coverage (``info().details["groundtruth_coverage"]``) is the fraction of
+associated frames whose colour stamp has a ground-truth pose within
+:data:`GROUNDTRUTH_MAX_DT_S` (the matching tolerance of TUM's ``evaluate_ate.py``);
+``groundtruth_span_coverage`` is the fraction inside the ground-truth time span, where a pose
+can be interpolated.
+
+Undistortion (``undistort=True``) remaps the colour image with the camera's distortion model
+onto the same pinhole (same K, zero distortion); pixels that map outside the raw image become
+black. The depth image gets the same remap, with nearest-neighbour sampling, because the
+driver registered it pixel for pixel to the colour image: the same warp keeps that 1:1
+correspondence, and nearest sampling never invents depths by blending a foreground and a
+background reading across an edge. The depth values themselves are z-depths along the optical
+axis, which undistortion (no rotation, same centre) leaves unchanged. Caveat: the Kinect's
+hardware registration used its factory colour model, so registered depth only approximately
+shares the distortion that TUM calibrated later; TUM recommends the ROS default intrinsics
+without undistortion for that reason, which is why ``undistort`` is off by default.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Collection, Iterator
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from types import TracebackType
+from typing import Any, cast
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from slamcli.errors import ConfigError, FormatError, InputError
+from slamcli.formats.base import Frame, ReadStats, SourceInfo, StreamInfo
+from slamcli.formats.camera import DEFAULT_DEPTH_FACTOR, resolve_camera
+from slamcli.formats.text import iter_data_lines, parse_floats, parse_stamp_ns
+from slamcli.formats.trajectory import read_trajectory
+from slamcli.types import (
+    ImageFrame,
+    ImuFrame,
+    PinholeCamera,
+    ProgressFn,
+    RgbdFrame,
+    Trajectory,
+)
+
+log = logging.getLogger(__name__)
+
+GROUNDTRUTH_MAX_DT_S = 0.02
+"""A frame counts as covered by ground truth when a pose lies within this many seconds."""
+
+DEPTH_PLAUSIBLE_M = (0.3, 10.0)
+"""Indoor RGB-D sensors report depths in this range (m); the depth-scale check relies on it."""
+
+FRAME_KINDS = ("rgbd", "image", "imu")
+"""The frame kinds a TUM folder provides."""
+
+_ALL_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu")
+_DEPTH_SAMPLES = 5
+_KNOWN_DEPTH_FACTORS = {1000.0: "millimetres", 5000.0: "TUM units (5000 per metre)"}
+
+
+@dataclass(frozen=True)
+class ImageList:
+    """One ``timestamp filename`` list file, sorted by time.
+
+    Attributes:
+        path: the list file.
+        stamps_ns: (N,) int64 nanoseconds, non-decreasing.
+        files: N file names as listed (relative to the folder).
+        lines: N line numbers in the list file (1-based), for messages.
+    """
+
+    path: Path
+    stamps_ns: NDArray[np.int64]
+    files: tuple[str, ...]
+    lines: tuple[int, ...]
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def where(self, k: int) -> str:
+        """``"rgb.txt:12"``: where entry ``k`` was listed."""
+        return f"{self.path.name}:{self.lines[k]}"
+
+
+def read_image_list(path: str | Path) -> ImageList:
+    """Read a TUM ``timestamp filename`` list (comments, blank lines and CRLF allowed).
+
+    Raises:
+        FormatError: a line without exactly two fields, or a bad timestamp (names file:line).
+    """
+    p = Path(path)
+    stamps: list[int] = []
+    files: list[str] = []
+    lines: list[int] = []
+    for number, fields in iter_data_lines(p):
+        if len(fields) != 2:
+            raise FormatError(
+                p,
+                f"expected 'timestamp filename', found {len(fields)} fields",
+                number,
+                hint="TUM list files have one 'timestamp path/to/image.png' per line",
+            )
+        stamps.append(parse_stamp_ns(fields[0], p, number))
+        files.append(fields[1])
+        lines.append(number)
+    order = np.argsort(np.asarray(stamps, dtype=np.int64), kind="stable")
+    return ImageList(
+        p,
+        np.asarray(stamps, dtype=np.int64)[order],
+        tuple(files[i] for i in order),
+        tuple(lines[i] for i in order),
+    )
+
+
+def associate_stamps(
+    first_ns: ArrayLike, second_ns: ArrayLike, max_dt_ns: int, offset_ns: int = 0
+) -> tuple[NDArray[np.intp], NDArray[np.intp]]:
+    """Pair two stamp lists like TUM's ``associate.py`` in O(N log M + K log K), K candidates.
+
+    Candidates are all ``(i, j)`` with ``|first[i] - (second[j] + offset)| < max_dt``; they are
+    taken in order of increasing ``|Δt|`` (ties by first stamp, second stamp, then index),
+    each index at most once.
+
+    Args:
+        first_ns: (N,) int64 nanoseconds (colour).
+        second_ns: (M,) int64 nanoseconds (depth).
+        max_dt_ns: strict upper bound on ``|Δt|`` in nanoseconds.
+        offset_ns: added to ``second_ns`` before comparing.
+
+    Returns:
+        (P,) indices into ``first_ns`` and (P,) indices into ``second_ns``, ordered by the
+        first list's stamp (then index).
+    """
+    a = np.asarray(first_ns, dtype=np.int64).reshape(-1)
+    b = np.asarray(second_ns, dtype=np.int64).reshape(-1) + np.int64(offset_ns)
+    empty = np.zeros(0, dtype=np.intp)
+    if a.size == 0 or b.size == 0 or max_dt_ns <= 0:
+        return empty, empty
+    b_order = np.argsort(b, kind="stable")
+    b_sorted = b[b_order]
+    lo = np.searchsorted(b_sorted, a - max_dt_ns, side="right")
+    hi = np.searchsorted(b_sorted, a + max_dt_ns, side="left")
+    counts = np.maximum(hi - lo, 0)
+    total = int(counts.sum())
+    if total == 0:
+        return empty, empty
+    i = np.repeat(np.arange(a.size, dtype=np.intp), counts)
+    group_start = np.repeat(np.cumsum(counts) - counts, counts)
+    j = b_order[np.repeat(lo, counts) + (np.arange(total) - group_start)]
+    dt = np.abs(a[i] - b[j])
+    order = np.lexsort((j, i, b[j], a[i], dt))
+    used_a = bytearray(a.size)
+    used_b = bytearray(b.size)
+    pairs: list[tuple[int, int]] = []
+    # The greedy 1:1 pass is inherently sequential, but runs over the few candidates inside the
+    # windows (about one or two per frame), not over all N x M pairs.
+    for ii, jj in zip(i[order].tolist(), j[order].tolist(), strict=True):
+        if not used_a[ii] and not used_b[jj]:
+            used_a[ii] = used_b[jj] = 1
+            pairs.append((ii, jj))
+    out = np.asarray(pairs, dtype=np.intp)
+    out = out[np.lexsort((out[:, 0], a[out[:, 0]]))]
+    return out[:, 0], out[:, 1]
+
+
+class TumRgbdSource:
+    """A TUM RGB-D folder as a :class:`~slamcli.formats.base.Source`.
+
+    Args:
+        path: the folder (holds ``rgb.txt`` and ``depth.txt``).
+        max_dt: pairing tolerance in seconds (strict, as in ``associate.py``).
+        dt_offset: seconds added to depth stamps before pairing.
+        depth_factor: raw depth units per metre; default: the camera file's, else 5000.
+        camera, fx, fy, cx, cy: camera choice, see :func:`~slamcli.formats.camera.resolve_camera`.
+        undistort: remove lens distortion from colour (and, the same way, depth); see the
+            module docstring.
+        strict: an unreadable or missing image raises :class:`FormatError` instead of being
+            skipped.
+
+    Raises:
+        InputError: not a folder, or ``rgb.txt``/``depth.txt`` missing.
+        FormatError: a malformed list line.
+        ConfigError: a bad option value.
+    """
+
+    format_name = "tum"
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        max_dt: float = 0.02,
+        dt_offset: float = 0.0,
+        depth_factor: float | None = None,
+        camera: str | Path | PinholeCamera | None = None,
+        fx: float | None = None,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        undistort: bool = False,
+        strict: bool = False,
+    ) -> None:
+        self.path = Path(path)
+        if not np.isfinite(max_dt) or max_dt <= 0:
+            raise ConfigError(f"max_dt must be a positive number of seconds, got {max_dt}")
+        if not np.isfinite(dt_offset):
+            raise ConfigError(f"dt_offset must be a finite number of seconds, got {dt_offset}")
+        if depth_factor is not None and not (np.isfinite(depth_factor) and depth_factor > 0):
+            raise ConfigError(f"depth_factor must be > 0 (units per metre), got {depth_factor}")
+        if not self.path.is_dir():
+            raise InputError(f"{self.path}: a TUM RGB-D input is a folder")
+        missing = [n for n in ("rgb.txt", "depth.txt") if not (self.path / n).is_file()]
+        if missing:
+            present = [
+                n for n in ("rgb.txt", "depth.txt", "associations.txt") if (self.path / n).is_file()
+            ]
+            raise InputError(
+                f"{self.path}: TUM RGB-D folder has no {' and no '.join(missing)}"
+                + (f" (found {', '.join(present)})" if present else ""),
+                hint="a TUM RGB-D folder has rgb.txt and depth.txt listing 'timestamp file' lines",
+            )
+        self.max_dt = float(max_dt)
+        self.dt_offset = float(dt_offset)
+        self.undistort = bool(undistort)
+        self.strict = bool(strict)
+        self.stats = ReadStats()
+        self.rgb_list = read_image_list(self.path / "rgb.txt")
+        self.depth_list = read_image_list(self.path / "depth.txt")
+        resolved = resolve_camera(self.path, camera, fx, fy, cx, cy)
+        self.raw_camera = resolved.camera
+        self.camera_source = resolved.source
+        self.camera_is_fallback = resolved.fallback
+        if depth_factor is not None:
+            self.depth_factor, self.depth_factor_source = float(depth_factor), "given"
+        elif resolved.depth_factor is not None:
+            self.depth_factor, self.depth_factor_source = resolved.depth_factor, "camera file"
+        else:
+            self.depth_factor, self.depth_factor_source = DEFAULT_DEPTH_FACTOR, "TUM default"
+        self._remove_distortion = self.undistort and self.raw_camera.is_distorted
+        self.camera = self.raw_camera.undistorted() if self._remove_distortion else self.raw_camera
+        self.rgb_index, self.depth_index = associate_stamps(
+            self.rgb_list.stamps_ns,
+            self.depth_list.stamps_ns,
+            round(self.max_dt * 1e9),
+            round(self.dt_offset * 1e9),
+        )
+        self._maps: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
+        self._dfactor = np.float32(self.depth_factor)
+
+    @classmethod
+    def sniff(cls, path: str | Path) -> bool:
+        """A folder with ``rgb.txt`` or ``depth.txt``; :meth:`open` names whichever is missing."""
+        p = Path(path)
+        return p.is_dir() and ((p / "rgb.txt").is_file() or (p / "depth.txt").is_file())
+
+    @classmethod
+    def open(cls, path: str | Path, **options: Any) -> TumRgbdSource:
+        """Open a TUM folder; ``options`` are the constructor's keyword arguments."""
+        return cls(path, **options)
+
+    def __enter__(self) -> TumRgbdSource:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self._maps = None
+
+    def __len__(self) -> int:
+        """Number of associated RGB-D frames."""
+        return int(self.rgb_index.size)
+
+    def associations(self) -> list[tuple[int, str, int, str]]:
+        """The pairs as ``(rgb_stamp_ns, rgb_file, depth_stamp_ns, depth_file)``, by time."""
+        r, d = self.rgb_list, self.depth_list
+        return [
+            (int(r.stamps_ns[i]), r.files[i], int(d.stamps_ns[j]), d.files[j])
+            for i, j in zip(self.rgb_index.tolist(), self.depth_index.tolist(), strict=True)
+        ]
+
+    @cached_property
+    def _groundtruth(self) -> Trajectory | None:
+        p = self.path / "groundtruth.txt"
+        return read_trajectory(p, "tum") if p.is_file() else None
+
+    def groundtruth(self) -> Trajectory | None:
+        """Poses of the colour camera in the mocap world (camera-to-world), or None."""
+        return self._groundtruth
+
+    @cached_property
+    def _accelerometer(self) -> tuple[NDArray[np.int64], NDArray[np.float64]] | None:
+        p = self.path / "accelerometer.txt"
+        if not p.is_file():
+            return None
+        stamps: list[int] = []
+        rows: list[list[float]] = []
+        for number, fields in iter_data_lines(p):
+            if len(fields) != 4:
+                raise FormatError(
+                    p, f"expected 'timestamp ax ay az', found {len(fields)} fields", number
+                )
+            stamps.append(parse_stamp_ns(fields[0], p, number))
+            rows.append(parse_floats(fields[1:], p, number, "acceleration"))
+        t = np.asarray(stamps, dtype=np.int64)
+        order = np.argsort(t, kind="stable")
+        return t[order], np.asarray(rows, dtype=np.float64).reshape(-1, 3)[order]
+
+    def frames(self, kinds: Collection[str] = ("rgbd",)) -> Iterator[Frame]:
+        """Yield frames of the requested kinds in time order, decoding images lazily.
+
+        ``rgbd`` gives :class:`RgbdFrame` for each associated pair, ``image`` an
+        :class:`ImageFrame` for every listed colour image, ``imu`` an accelerometer-only
+        :class:`ImuFrame` (m/s²). When ``rgbd`` and ``image`` are both asked for, a colour
+        image is decoded once and the two frames share its array. Frames whose images are
+        missing or unreadable are skipped and counted in :attr:`stats` (with ``strict``, a
+        :class:`FormatError`).
+
+        Raises:
+            ConfigError: an unknown kind.
+            InputError: a kind a TUM folder never has, or images not of the camera's size.
+        """
+        wanted = self._check_kinds(kinds)
+        stamps: list[NDArray[np.int64]] = []
+        codes: list[NDArray[np.int64]] = []
+        index: list[NDArray[np.int64]] = []
+        # At equal stamps: accelerometer, then the image, then the RGB-D frame built from it.
+        accel = self._accelerometer if "imu" in wanted else None
+        if accel is not None:
+            stamps.append(accel[0])
+            codes.append(np.zeros(accel[0].size, dtype=np.int64))
+            index.append(np.arange(accel[0].size, dtype=np.int64))
+        if "image" in wanted:
+            n = len(self.rgb_list)
+            stamps.append(self.rgb_list.stamps_ns)
+            codes.append(np.ones(n, dtype=np.int64))
+            index.append(np.arange(n, dtype=np.int64))
+        if "rgbd" in wanted:
+            stamps.append(self.rgb_list.stamps_ns[self.rgb_index])
+            codes.append(np.full(self.rgb_index.size, 2, dtype=np.int64))
+            index.append(np.arange(self.rgb_index.size, dtype=np.int64))
+        if not stamps:
+            return
+        t, c, k = (np.concatenate(x) for x in (stamps, codes, index))
+        order = np.lexsort((k, c, t))
+        last_rgb: tuple[int, NDArray[np.uint8] | None] = (-1, None)
+        for code, idx in zip(c[order].tolist(), k[order].tolist(), strict=True):
+            if code == 0 and accel is not None:
+                self.stats.read += 1
+                yield ImuFrame(int(accel[0][idx]), accel_mps2=accel[1][idx])
+                continue
+            ri = idx if code == 1 else int(self.rgb_index[idx])
+            name = self.rgb_list.files[ri]
+            if last_rgb[0] == ri:
+                rgb = last_rgb[1]
+            else:
+                rgb = self._load_rgb(ri)
+                last_rgb = (ri, rgb)
+            if code == 1:
+                if rgb is None:
+                    self._skip(name)
+                    continue
+                self.stats.read += 1
+                yield ImageFrame(int(self.rgb_list.stamps_ns[ri]), rgb, self.camera, name)
+                continue
+            di = int(self.depth_index[idx])
+            depth = self._load_depth(di) if rgb is not None else None
+            if rgb is None or depth is None:
+                self._skip(name)
+                continue
+            if depth.shape != rgb.shape[:2]:
+                self._unreadable(
+                    self.depth_list,
+                    di,
+                    f"is {depth.shape[1]}x{depth.shape[0]}, its colour image "
+                    f"{name} is {rgb.shape[1]}x{rgb.shape[0]}",
+                )
+                self._skip(name)
+                continue
+            self.stats.read += 1
+            yield RgbdFrame(
+                int(self.rgb_list.stamps_ns[ri]),
+                rgb,
+                depth,
+                self.camera,
+                int(self.depth_list.stamps_ns[di]),
+                name,
+            )
+
+    def info(self, deep: bool = False, progress: ProgressFn | None = None) -> SourceInfo:
+        """Streams, pairing, camera, ground-truth coverage, depth-scale check and problems.
+
+        Without ``deep`` only the listed files' existence is checked and a few depth images
+        are decoded; ``deep`` decodes every listed image, reporting ``progress(done, total)``.
+        ``details["unreadable"]`` names every missing or undecodable image found.
+        """
+        problems: list[str] = []
+        gt = self.groundtruth()
+        accel = self._accelerometer
+        streams = [
+            _stream("rgb", "image", self.rgb_list.stamps_ns, "rgb.txt"),
+            _stream("depth", "depth", self.depth_list.stamps_ns, "depth.txt"),
+        ]
+        if gt is not None:
+            streams.append(_stream("groundtruth", "pose", gt.stamps_ns, "groundtruth.txt"))
+        if accel is not None:
+            streams.append(_stream("accelerometer", "imu", accel[0], "accelerometer.txt"))
+        n_rgb, n_depth, n_pairs = len(self.rgb_list), len(self.depth_list), len(self)
+        details: dict[str, Any] = {
+            "max_dt_s": self.max_dt,
+            "dt_offset_s": self.dt_offset,
+            "unmatched_rgb": n_rgb - n_pairs,
+            "unmatched_depth": n_depth - n_pairs,
+            "depth_factor": self.depth_factor,
+            "depth_factor_source": self.depth_factor_source,
+            "undistort": self._remove_distortion,
+            "deep": deep,
+        }
+        if n_pairs:
+            dt = np.abs(
+                self.rgb_list.stamps_ns[self.rgb_index]
+                - self.depth_list.stamps_ns[self.depth_index]
+                - round(self.dt_offset * 1e9)
+            )
+            details["pair_dt_ms"] = {
+                "median": float(np.median(dt)) * 1e-6,
+                "max": float(dt.max()) * 1e-6,
+            }
+        else:
+            problems.append(
+                f"no colour/depth pairs within max_dt {self.max_dt:g} s; the stamps may be "
+                "offset (see dt_offset)"
+            )
+        for what, unmatched, total in (
+            ("colour", n_rgb - n_pairs, n_rgb),
+            ("depth", n_depth - n_pairs, n_depth),
+        ):
+            if n_pairs and unmatched > 0.1 * total:
+                problems.append(
+                    f"{unmatched} of {total} {what} images have no partner within {self.max_dt:g} s"
+                )
+        if self.camera_is_fallback:
+            problems.append(f"camera unknown: {self.camera_source}")
+        self._coverage(gt, details, problems)
+        unreadable = self._check_files(deep, progress)
+        details["unreadable"] = unreadable
+        problems.extend(f"unreadable: {u}" for u in unreadable)
+        self._check_camera_size(problems)
+        depth_problem = self._check_depth_scale(details)
+        if depth_problem:
+            problems.append(depth_problem)
+        return SourceInfo(
+            format=self.format_name,
+            path=str(self.path),
+            streams=streams,
+            frames=n_pairs,
+            groundtruth=len(gt) if gt is not None else 0,
+            camera=self.camera,
+            camera_source=self.camera_source,
+            problems=problems,
+            details=details,
+        )
+
+    def _check_kinds(self, kinds: Collection[str]) -> set[str]:
+        wanted = set([kinds] if isinstance(kinds, str) else kinds)
+        unknown = sorted(wanted - set(_ALL_KINDS))
+        if unknown:
+            raise ConfigError(
+                f"unknown frame kind(s) {', '.join(unknown)}",
+                hint=f"kinds: {', '.join(_ALL_KINDS)}",
+            )
+        absent = sorted(wanted - set(FRAME_KINDS))
+        if absent:
+            raise InputError(
+                f"{self.path}: a TUM RGB-D folder has no {', '.join(absent)} frames",
+                hint=f"it provides {', '.join(FRAME_KINDS)}",
+            )
+        return wanted
+
+    def _skip(self, name: str) -> None:
+        self.stats.skipped += 1
+        self.stats.skipped_names.append(name)
+
+    def _imread(self, lst: ImageList, k: int, flags: int) -> tuple[NDArray[Any] | None, str]:
+        """Decode image ``k`` of ``lst``; returns ``(image, "")`` or ``(None, reason)``."""
+        import cv2
+
+        path = self.path / lst.files[k]
+        img = cv2.imread(str(path), flags)
+        if img is None:
+            return None, "does not exist" if not path.is_file() else "cannot be decoded as an image"
+        if lst is self.depth_list and (img.dtype != np.uint16 or img.ndim != 2):
+            channels = 1 if img.ndim == 2 else img.shape[2]
+            return None, (
+                f"is {img.dtype} with {channels} channel(s), expected 16-bit single-channel depth"
+            )
+        return img, ""
+
+    def _unreadable(self, lst: ImageList, k: int, reason: str, warn: bool = True) -> None:
+        """Image ``k`` of ``lst`` is unusable: a FormatError when strict, else maybe a warning."""
+        rel = lst.files[k]
+        if self.strict:
+            hint = "without strict, unreadable images are skipped and counted"
+            if reason == "does not exist":
+                raise FormatError(
+                    lst.path, f"lists {rel}, which does not exist", lst.lines[k], hint
+                )
+            raise FormatError(self.path / rel, f"{reason} (listed at {lst.where(k)})", hint=hint)
+        if warn:
+            log.warning("skipping %s: %s (listed at %s)", rel, reason, lst.where(k))
+
+    def _load_rgb(self, k: int) -> NDArray[np.uint8] | None:
+        """Colour image ``k`` as (H, W, 3) uint8 RGB (undistorted if asked), or None if unusable."""
+        import cv2
+
+        bgr, reason = self._imread(self.rgb_list, k, cv2.IMREAD_COLOR)
+        if bgr is None:
+            self._unreadable(self.rgb_list, k, reason)
+            return None
+        if bgr.shape[:2] != (self.camera.height, self.camera.width):
+            raise InputError(
+                f"{self.path / self.rgb_list.files[k]}: image is {bgr.shape[1]}x{bgr.shape[0]}, "
+                f"the camera ({self.camera_source}) is {self.camera.width}x{self.camera.height}",
+                hint="give the right camera with --camera or a camera file next to the data",
+            )
+        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB, dst=bgr)
+        if self._remove_distortion:
+            mx, my = self._undistort_maps()
+            rgb = cv2.remap(rgb, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+        return cast("NDArray[np.uint8]", rgb)
+
+    def _load_depth(self, k: int) -> NDArray[np.float32] | None:
+        """Depth image ``k`` as (H, W) float32 metres (0 = no reading), or None if unusable."""
+        import cv2
+
+        raw, reason = self._imread(self.depth_list, k, cv2.IMREAD_UNCHANGED)
+        if raw is None:
+            self._unreadable(self.depth_list, k, reason)
+            return None
+        if self._remove_distortion:
+            mx, my = self._undistort_maps()
+            raw = cv2.remap(raw, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+        # One pass from uint16 to float32 metres: no float64 intermediate, no extra copy.
+        return np.divide(raw, self._dfactor, dtype=np.float32)
+
+    def _undistort_maps(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        import cv2
+
+        maps = self._maps
+        if maps is None:
+            cam = self.raw_camera
+            k = cam.K
+            dist = np.asarray(cam.distortion, dtype=np.float64)
+            # Float maps rather than fixed-point ones, so INTER_NEAREST rounds to the nearest
+            # source pixel instead of truncating.
+            mx, my = cv2.initUndistortRectifyMap(
+                k, dist, None, k, (cam.width, cam.height), cv2.CV_32FC1
+            )
+            maps = (cast("NDArray[np.float32]", mx), cast("NDArray[np.float32]", my))
+            self._maps = maps
+        return maps
+
+    def _coverage(
+        self, gt: Trajectory | None, details: dict[str, Any], problems: list[str]
+    ) -> None:
+        if gt is None or len(gt) == 0 or len(self) == 0:
+            details["groundtruth_coverage"] = None
+            details["groundtruth_span_coverage"] = None
+            return
+        q = self.rgb_list.stamps_ns[self.rgb_index]
+        g = gt.stamps_ns
+        after = np.searchsorted(g, q)
+        left = g[np.clip(after - 1, 0, g.size - 1)]
+        right = g[np.clip(after, 0, g.size - 1)]
+        nearest = np.minimum(np.abs(q - left), np.abs(q - right))
+        covered = int(np.count_nonzero(nearest <= round(GROUNDTRUTH_MAX_DT_S * 1e9)))
+        inside = int(np.count_nonzero((q >= g[0]) & (q <= g[-1])))
+        details["groundtruth_covered"] = covered
+        details["groundtruth_coverage"] = covered / len(self)
+        details["groundtruth_span_coverage"] = inside / len(self)
+        if covered < 0.9 * len(self):
+            problems.append(
+                f"only {covered} of {len(self)} frames have a ground-truth pose within "
+                f"{GROUNDTRUTH_MAX_DT_S:g} s"
+            )
+
+    def _check_files(self, deep: bool, progress: ProgressFn | None) -> list[str]:
+        """Listed images that are missing (or, with ``deep``, undecodable), as messages."""
+        import cv2
+
+        jobs = [(self.rgb_list, k, cv2.IMREAD_COLOR) for k in range(len(self.rgb_list))]
+        jobs += [(self.depth_list, k, cv2.IMREAD_UNCHANGED) for k in range(len(self.depth_list))]
+        bad: list[str] = []
+        total = len(jobs)
+        for done, (lst, k, flags) in enumerate(jobs, start=1):
+            if deep:
+                reason = self._imread(lst, k, flags)[1]
+            else:
+                reason = "" if (self.path / lst.files[k]).is_file() else "does not exist"
+            if reason:
+                self._unreadable(lst, k, reason, warn=False)
+                bad.append(f"{lst.files[k]} {reason} (listed at {lst.where(k)})")
+            if progress is not None and (deep or done == total):
+                progress(done, total)
+        return bad
+
+    def _check_camera_size(self, problems: list[str]) -> None:
+        """Compare the first decodable colour image's size with the camera's."""
+        import cv2
+
+        for k in range(len(self.rgb_list)):
+            img = self._imread(self.rgb_list, k, cv2.IMREAD_UNCHANGED)[0]
+            if img is None:
+                continue
+            h, w = img.shape[:2]
+            if (w, h) != (self.camera.width, self.camera.height):
+                problems.append(
+                    f"images are {w}x{h} but the camera ({self.camera_source}) is "
+                    f"{self.camera.width}x{self.camera.height}"
+                )
+            return
+
+    def _check_depth_scale(self, details: dict[str, Any]) -> str | None:
+        """Sample a few paired depth images and judge the depth factor (see DEPTH_PLAUSIBLE_M)."""
+        import cv2
+
+        if len(self) == 0:
+            return None
+        n = min(_DEPTH_SAMPLES, len(self))
+        picks = np.unique(np.linspace(0, len(self) - 1, n).round().astype(np.intp))
+        values: list[NDArray[np.uint16]] = []
+        pixels = 0
+        for p in picks.tolist():
+            raw = self._imread(self.depth_list, int(self.depth_index[p]), cv2.IMREAD_UNCHANGED)[0]
+            if raw is not None:
+                pixels += raw.size
+                values.append(raw[raw > 0])
+        if not values:
+            return None
+        valid = np.concatenate(values)
+        check: dict[str, Any] = {"samples": len(values), "valid_fraction": valid.size / pixels}
+        details["depth_check"] = check
+        if valid.size == 0:
+            return "the sampled depth images hold no readings (all zero)"
+        p5, median, p95 = (float(v) for v in np.percentile(valid, [5, 50, 95]) / self.depth_factor)
+        check.update(
+            median_m=median,
+            p5_m=p5,
+            p95_m=p95,
+            plausible_fraction=_plausible_fraction(valid, self.depth_factor),
+        )
+        return depth_scale_problem(valid, self.depth_factor)
+
+
+def depth_scale_problem(raw: NDArray[Any], factor: float) -> str | None:
+    """Judge a depth factor from raw non-zero depth readings, or None if it looks right.
+
+    Indoor RGB-D sensors read between about 0.3 and 10 m (:data:`DEPTH_PLAUSIBLE_M`); a
+    Kinect-class sensor reports nothing nearer than ~0.4 m. If fewer than 80 % of readings land
+    in that range with ``factor`` but at least 80 % (and 20 points more) do with another common
+    factor (1000 = millimetres, 5000 = TUM), the data was most likely written with that one.
+    A scale error only shows when the scene reaches the range limits: millimetre data of a
+    scene 2-8 m away read with factor 5000 still looks plausible (0.4-1.6 m).
+
+    Args:
+        raw: (K,) raw readings, zeros already removed.
+        factor: raw units per metre being used.
+    """
+    if raw.size == 0:
+        return None
+    here = _plausible_fraction(raw, factor)
+    if here >= 0.8:
+        return None
+    median = float(np.median(raw)) / factor
+    lo, hi = DEPTH_PLAUSIBLE_M
+    what = f"median {median:.2f} m, only {here:.0%} of readings within {lo:g}-{hi:g} m"
+    best = max(
+        ((_plausible_fraction(raw, f), f) for f in _KNOWN_DEPTH_FACTORS if f != factor),
+        default=(0.0, factor),
+    )
+    if best[0] >= 0.8 and best[0] >= here + 0.2:
+        return (
+            f"depth looks like {_KNOWN_DEPTH_FACTORS[best[1]]} read with depth factor {factor:g} "
+            f"({what}); with depth factor {best[1]:g}, {best[0]:.0%} would be"
+        )
+    return f"depth readings look implausible for an indoor scene ({what}); check the depth factor"
+
+
+def _plausible_fraction(raw: NDArray[Any], factor: float) -> float:
+    lo, hi = DEPTH_PLAUSIBLE_M
+    m = raw / factor
+    return float(np.count_nonzero((m >= lo) & (m <= hi))) / raw.size
+
+
+def _stream(name: str, kind: str, stamps_ns: NDArray[np.int64], detail: str) -> StreamInfo:
+    n = int(stamps_ns.size)
+    if n == 0:
+        return StreamInfo(name, kind, 0, detail=detail)
+    start, end = float(stamps_ns[0]) * 1e-9, float(stamps_ns[-1]) * 1e-9
+    span = (int(stamps_ns[-1]) - int(stamps_ns[0])) * 1e-9
+    rate = (n - 1) / span if n > 1 and span > 0 else None
+    return StreamInfo(name, kind, n, rate, start, end, detail)
