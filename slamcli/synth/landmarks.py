@@ -1,0 +1,398 @@
+"""A planar landmark world for EKF-SLAM: a robot driving laps of a closed loop among landmarks.
+
+The robot is a unicycle. Its true controls are piecewise constant over each odometry period
+``dt``: straight legs at ``speed`` m/s and 90-degree left turns of constant yaw rate, laid out as
+a rounded rectangle (12 m and 8 m legs, turns of about 1.9 m radius, 52 m per lap) that closes
+exactly, centred on the origin and starting at its lower-left leg heading +x. Poses advance by
+the exact arc integration of each control::
+
+    w != 0:  x += v/w (sin(th + w dt) - sin th),  y += v/w (cos th - cos(th + w dt)),  th += w dt
+    w == 0:  x += v dt cos th,  y += v dt sin th
+
+Odometry reports each control the way wheel encoders do: scaled by a constant factor per run
+(``1 + b`` with ``b ~ N(0, bias_sigma)``, a wrong wheel radius or track width) plus white noise.
+Landmarks lie in a band 1 to 5 m either side of the loop, at least 1 m apart. At every
+measurement stamp each landmark inside ``max_range`` and the field of view is seen with
+probability ``detection_prob``, as range (m) and bearing (rad, counter-clockwise from the
+heading, in (-pi, pi]) with Gaussian noise.
+
+Folder layout (times in seconds with 6 decimals, starting at 1700000000.000000)::
+
+    odometry.csv      t,v,omega          control applied over [t, t + dt): m/s, rad/s
+    measurements.csv  t,id,range,bearing one row per observation, sorted by t then id
+    groundtruth.tum   t tx ty tz qx qy qz qw   true poses as TUM SE(3) (z = 0, yaw about +z),
+                      one more stamp than odometry.csv: the pose after the last control
+    landmarks.csv     id,x,y             true landmark positions, m
+    world.json        seed, rates, sensor limits, noise parameters, the drawn odometry scale
+                      factors and counts
+
+Measurement stamps coincide with odometry stamps (every ``odometry_hz / measurement_hz``-th
+one), and the pose in groundtruth.tum at that stamp is the pose the observation was taken
+from.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from dataclasses import asdict, dataclass, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.errors import ConfigError
+from slamcli.geometry import make_pose, matrix_to_quat_xyzw, so3_exp
+from slamcli.rundir import RunDir
+from slamcli.types import ProgressFn, Trajectory
+
+log = logging.getLogger(__name__)
+
+F64 = NDArray[np.float64]
+
+EPOCH_NS = 1_700_000_000 * 1_000_000_000
+"""Stamp of the first odometry record."""
+
+_STRAIGHT_X_M, _STRAIGHT_Y_M = 12.0, 8.0
+_TURN_S = 3.0
+_BAND_M = (1.0, 5.0)
+_MIN_SEPARATION_M = 1.0
+
+
+@dataclass(frozen=True)
+class LandmarkSensor:
+    """Rates, sensor limits and noise of a landmark world (SI units, radians).
+
+    Attributes:
+        odometry_hz: odometry (control) rate.
+        measurement_hz: observation rate; must divide ``odometry_hz``.
+        speed: forward speed on every leg, m/s.
+        max_range: farthest observed landmark, m.
+        fov: full field of view centred on the heading, rad (2 pi = all around).
+        detection_prob: chance that a landmark in range and view is reported.
+        range_sigma, bearing_sigma: observation noise, m and rad.
+        v_sigma, omega_sigma: odometry white noise, m/s and rad/s.
+        v_bias_sigma, omega_bias_sigma: spread of the per-run odometry scale errors.
+    """
+
+    odometry_hz: float = 20.0
+    measurement_hz: float = 10.0
+    speed: float = 1.0
+    max_range: float = 6.0
+    fov: float = math.pi
+    detection_prob: float = 0.95
+    range_sigma: float = 0.10
+    bearing_sigma: float = math.radians(2.0)
+    v_sigma: float = 0.05
+    omega_sigma: float = math.radians(3.0)
+    v_bias_sigma: float = 0.02
+    omega_bias_sigma: float = 0.03
+
+    def noiseless(self) -> LandmarkSensor:
+        """The same sensor with every noise term zero and every landmark in view detected."""
+        return replace(
+            self,
+            detection_prob=1.0,
+            range_sigma=0.0,
+            bearing_sigma=0.0,
+            v_sigma=0.0,
+            omega_sigma=0.0,
+            v_bias_sigma=0.0,
+            omega_bias_sigma=0.0,
+        )
+
+
+@dataclass(frozen=True)
+class LandmarkWorld:
+    """A simulated run, in memory.
+
+    Attributes:
+        stamps_ns: (K + 1,) int64 ground-truth stamps; the first K are the odometry stamps.
+        poses: (K + 1, 3) true x, y (m), heading (rad).
+        controls: (K, 2) true v (m/s), omega (rad/s) applied after each stamp.
+        odometry: (K, 2) reported v, omega.
+        landmarks: (N, 2) true landmark positions, m; landmark ``i`` has id ``i``.
+        meas_index: (M,) int64 index into ``stamps_ns`` of each observation.
+        meas_ids: (M,) int64 landmark ids.
+        meas_range: (M,) metres.
+        meas_bearing: (M,) radians in (-pi, pi].
+        odometry_scale: (2,) drawn scale factors (1 + b) of v and omega.
+        sensor: the parameters used.
+        seed: the seed used.
+    """
+
+    stamps_ns: NDArray[np.int64]
+    poses: F64
+    controls: F64
+    odometry: F64
+    landmarks: F64
+    meas_index: NDArray[np.int64]
+    meas_ids: NDArray[np.int64]
+    meas_range: F64
+    meas_bearing: F64
+    odometry_scale: F64
+    sensor: LandmarkSensor
+    seed: int
+
+    def trajectory(self) -> Trajectory:
+        """The true poses as a planar SE(3) trajectory (z = 0, rotation about +z)."""
+        rot = so3_exp(np.stack([np.zeros_like(self.poses[:, 2])] * 2 + [self.poses[:, 2]], 1))
+        xyz = np.concatenate([self.poses[:, :2], np.zeros((len(self.poses), 1))], axis=1)
+        return Trajectory(self.stamps_ns, make_pose(rot, xyz))
+
+
+def _lap_controls(sensor: LandmarkSensor) -> F64:
+    """True (v, omega) per odometry step for one lap, (L, 2)."""
+    dt = 1.0 / sensor.odometry_hz
+    steps_x = round(_STRAIGHT_X_M / (sensor.speed * dt))
+    steps_y = round(_STRAIGHT_Y_M / (sensor.speed * dt))
+    steps_turn = round(_TURN_S / dt)
+    omega = (math.pi / 2) / (steps_turn * dt)
+    legs = []
+    for steps in (steps_x, steps_y, steps_x, steps_y):
+        legs.append(np.tile([sensor.speed, 0.0], (steps, 1)))
+        legs.append(np.tile([sensor.speed, omega], (steps_turn, 1)))
+    return np.concatenate(legs)
+
+
+def _integrate(start: F64, controls: F64, dt: float) -> F64:
+    """Exact unicycle integration of (K, 2) controls from a (3,) pose -> (K + 1, 3) poses."""
+    poses = np.empty((len(controls) + 1, 3))
+    poses[0] = start
+    # Sequential by nature; each step is a few flops.
+    for k, (v, w) in enumerate(controls):
+        x, y, th = poses[k]
+        if abs(w) > 1e-12:
+            th1 = th + w * dt
+            poses[k + 1] = (
+                x + v / w * (math.sin(th1) - math.sin(th)),
+                y + v / w * (math.cos(th) - math.cos(th1)),
+                th1,
+            )
+        else:
+            poses[k + 1] = (x + v * dt * math.cos(th), y + v * dt * math.sin(th), th)
+    return poses
+
+
+def _wrap(angle: F64) -> F64:
+    """Angles wrapped to (-pi, pi]."""
+    return np.pi - np.mod(np.pi - angle, 2 * np.pi)
+
+
+def _place_landmarks(rng: np.random.Generator, path_xy: F64, count: int) -> F64:
+    """(count, 2) landmarks in a band beside the path, at least ``_MIN_SEPARATION_M`` apart."""
+    seg = np.diff(path_xy, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    keep = seg_len > 0
+    seg, seg_len, starts = seg[keep], seg_len[keep], path_xy[:-1][keep]
+    cum = np.concatenate([[0.0], np.cumsum(seg_len)])
+    # Random sequential placement fills about half the plane at most; ask for well below that
+    # so rejection sampling ends quickly.
+    band_area = 2.0 * (_BAND_M[1] - _BAND_M[0]) * cum[-1]
+    limit = int(0.3 * band_area / _MIN_SEPARATION_M**2)
+    if count > limit:
+        raise ConfigError(
+            f"landmarks: at most {limit} fit around the loop at least {_MIN_SEPARATION_M} m "
+            f"apart, asked for {count}",
+            hint=f"ask for {limit} or fewer",
+        )
+    accepted = np.empty((0, 2))
+    for _ in range(50):
+        n = 4 * count
+        s = rng.uniform(0.0, cum[-1], n)
+        i = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(seg) - 1)
+        tangent = seg[i] / seg_len[i][:, None]
+        normal = np.stack([-tangent[:, 1], tangent[:, 0]], axis=1)
+        offset = rng.uniform(*_BAND_M, n) * rng.choice([-1.0, 1.0], n)
+        cand = starts[i] + tangent * (s - cum[i])[:, None] + normal * offset[:, None]
+        # Stay clear of every part of the path, not just the leg the point was drawn beside.
+        clear = np.min(np.linalg.norm(cand[:, None] - path_xy[None], axis=2), axis=1) >= _BAND_M[0]
+        for c in cand[clear]:
+            if len(accepted) == count:
+                return accepted
+            if len(accepted) == 0 or np.min(np.linalg.norm(accepted - c, axis=1)) >= (
+                _MIN_SEPARATION_M
+            ):
+                accepted = np.vstack([accepted, c])
+    raise ConfigError(
+        f"landmarks: cannot place {count} landmarks at least {_MIN_SEPARATION_M} m apart",
+        hint="ask for fewer landmarks",
+    )
+
+
+def simulate_landmark_world(
+    seed: int = 0,
+    landmarks: int = 40,
+    duration_s: float = 120.0,
+    sensor: LandmarkSensor | None = None,
+) -> LandmarkWorld:
+    """Simulate a run in memory (see the module docstring for the model).
+
+    Args:
+        seed: seeds landmark placement, odometry errors and observation noise.
+        landmarks: number of landmarks, >= 1.
+        duration_s: driving time in seconds (one lap is 52 s at 1 m/s).
+        sensor: rates, limits and noise; defaults to :class:`LandmarkSensor()`.
+    """
+    sensor = sensor or LandmarkSensor()
+    _check(landmarks, duration_s, sensor)
+    dt = 1.0 / sensor.odometry_hz
+    steps = round(duration_s * sensor.odometry_hz)
+    lap = _lap_controls(sensor)
+    controls = np.tile(lap, (steps // len(lap) + 1, 1))[:steps]
+    start = np.array(
+        [-_STRAIGHT_X_M / 2, -_STRAIGHT_Y_M / 2 - sensor.speed * _TURN_S * 2 / np.pi, 0.0]
+    )
+    poses = _integrate(start, controls, dt)
+    lap_path = _integrate(start, lap, dt)[:, :2]
+
+    rng_world = np.random.default_rng([seed, 0])
+    rng_odo = np.random.default_rng([seed, 1])
+    rng_meas = np.random.default_rng([seed, 2])
+    marks = _place_landmarks(rng_world, lap_path, landmarks)
+
+    scale = 1.0 + rng_odo.normal(0.0, [sensor.v_bias_sigma, sensor.omega_bias_sigma])
+    white = rng_odo.normal(0.0, [sensor.v_sigma, sensor.omega_sigma], controls.shape)
+    odometry = controls * scale + white
+
+    every = round(sensor.odometry_hz / sensor.measurement_hz)
+    at = np.arange(0, len(poses), every)
+    rel = marks[None, :, :] - poses[at, None, :2]
+    true_range = np.linalg.norm(rel, axis=2)
+    true_bearing = _wrap(np.arctan2(rel[..., 1], rel[..., 0]) - poses[at, None, 2])
+    visible = (true_range <= sensor.max_range) & (np.abs(true_bearing) <= sensor.fov / 2)
+    detected = rng_meas.uniform(size=visible.shape) < sensor.detection_prob
+    row, ids = np.nonzero(visible & detected)
+    ranges = true_range[row, ids] + rng_meas.normal(0.0, sensor.range_sigma, row.size)
+    bearings = _wrap(true_bearing[row, ids] + rng_meas.normal(0.0, sensor.bearing_sigma, row.size))
+
+    stamps = EPOCH_NS + np.rint(np.arange(len(poses)) * dt * 1e6).astype(np.int64) * 1000
+    return LandmarkWorld(
+        stamps_ns=stamps,
+        poses=poses,
+        controls=controls,
+        odometry=odometry,
+        landmarks=marks,
+        meas_index=at[row].astype(np.int64),
+        meas_ids=ids.astype(np.int64),
+        meas_range=np.maximum(ranges, 0.0),
+        meas_bearing=bearings,
+        odometry_scale=scale,
+        sensor=sensor,
+        seed=seed,
+    )
+
+
+def _check(landmarks: int, duration_s: float, sensor: LandmarkSensor) -> None:
+    if landmarks < 1:
+        raise ConfigError(f"landmarks: expected at least 1, got {landmarks}")
+    if not (math.isfinite(duration_s) and duration_s * sensor.odometry_hz >= 1):
+        raise ConfigError(
+            f"duration: expected at least one odometry period ({1 / sensor.odometry_hz:g} s), "
+            f"got {duration_s}"
+        )
+    ratio = sensor.odometry_hz / sensor.measurement_hz
+    if sensor.measurement_hz <= 0 or abs(ratio - round(ratio)) > 1e-9 or round(ratio) < 1:
+        raise ConfigError(
+            f"measurement_hz: must divide odometry_hz ({sensor.odometry_hz:g}), "
+            f"got {sensor.measurement_hz:g}"
+        )
+
+
+def _stamp(ns: int) -> str:
+    sec, rest = divmod(int(ns), 1_000_000_000)
+    return f"{sec}.{rest // 1000:06d}"
+
+
+def generate_landmark_world(
+    out: str | Path,
+    seed: int = 0,
+    landmarks: int = 40,
+    duration_s: float = 120.0,
+    sensor: LandmarkSensor | None = None,
+    force: bool = False,
+    progress: ProgressFn | None = None,
+) -> dict[str, Any]:
+    """Simulate a run and write it into ``out`` (layout in the module docstring).
+
+    Args:
+        out: output folder; must be empty or absent unless ``force``.
+        seed, landmarks, duration_s, sensor: as for :func:`simulate_landmark_world`.
+        force: write into a non-empty folder.
+        progress: called as ``progress(done, 5)`` after each file.
+
+    Returns:
+        Summary: ``seed``, ``landmarks``, ``duration_s``, ``odometry`` (rows),
+        ``measurements`` (rows), ``path_length_m``, ``laps``, ``out`` and ``files``.
+    """
+    world = simulate_landmark_world(seed, landmarks, duration_s, sensor)
+    run = RunDir(out, force=force)
+    total = 5
+    stamps = [_stamp(s) for s in world.stamps_ns]
+
+    def done(i: int) -> None:
+        if progress is not None:
+            progress(i, total)
+
+    odo = ["t,v,omega"] + [
+        f"{stamps[k]},{v:.6f},{w:.6f}" for k, (v, w) in enumerate(world.odometry)
+    ]
+    files = [run.write_text("odometry.csv", "\n".join(odo) + "\n")]
+    done(1)
+    meas = ["t,id,range,bearing"] + [
+        f"{stamps[k]},{i},{r:.6f},{b:.6f}"
+        for k, i, r, b in zip(
+            world.meas_index, world.meas_ids, world.meas_range, world.meas_bearing, strict=True
+        )
+    ]
+    files.append(run.write_text("measurements.csv", "\n".join(meas) + "\n"))
+    done(2)
+    traj = world.trajectory()
+    quats = matrix_to_quat_xyzw(traj.world_from_body[:, :3, :3])
+    gt = ["# ground truth: planar robot poses, world_from_body", "# timestamp tx ty tz qx qy qz qw"]
+    gt += [
+        f"{s} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
+        for s, p, q in zip(stamps, traj.positions, quats, strict=True)
+    ]
+    files.append(run.write_text("groundtruth.tum", "\n".join(gt) + "\n"))
+    done(3)
+    marks = ["id,x,y"] + [f"{i},{x:.6f},{y:.6f}" for i, (x, y) in enumerate(world.landmarks)]
+    files.append(run.write_text("landmarks.csv", "\n".join(marks) + "\n"))
+    done(4)
+    summary = _summary(world)
+    meta = {
+        "format": "slamcli-landmarks",
+        "format_version": 1,
+        "seed": seed,
+        "landmarks": landmarks,
+        "duration_s": duration_s,
+        "start_stamp": stamps[0],
+        "sensor": asdict(world.sensor),
+        "odometry_scale": {
+            "v": float(world.odometry_scale[0]),
+            "omega": float(world.odometry_scale[1]),
+        },
+        "motion_model": "unicycle, exact arc integration of piecewise-constant controls",
+        "counts": {k: summary[k] for k in ("odometry", "measurements")},
+    }
+    files.append(run.write_text("world.json", json.dumps(meta, indent=2) + "\n"))
+    done(5)
+    summary["out"] = str(run.path)
+    summary["files"] = [str(p) for p in files]
+    log.info("wrote a %d-landmark world into %s", landmarks, run.path)
+    return summary
+
+
+def _summary(world: LandmarkWorld) -> dict[str, Any]:
+    lap_steps = len(_lap_controls(world.sensor))
+    return {
+        "seed": world.seed,
+        "landmarks": len(world.landmarks),
+        "duration_s": len(world.controls) / world.sensor.odometry_hz,
+        "odometry": len(world.odometry),
+        "measurements": len(world.meas_ids),
+        "path_length_m": world.trajectory().path_length(),
+        "laps": len(world.controls) / lap_steps,
+    }

@@ -1,0 +1,860 @@
+"""A synthetic RGB-D sequence with exact ground truth, written as a TUM RGB-D folder.
+
+The scene is a closed room, 6 m x 5 m x 2.6 m (x in [-3, 3], y in [-2.5, 2.5], z in [0, 2.6],
+z up, gravity along -z), with seven boxes on the floor, one stacked on another. Every surface
+carries its own seeded procedural texture (tiles, posters, checkerboards, text, shapes from
+centimetres to half a metre), so feature detectors find corners at every scale and distance,
+and a static point light shades it, so brightness stays constant from any viewpoint.
+
+Images are ray cast with Open3D's ``RaycastingScene`` through a pinhole camera
+(``fx = fy = 0.8 * width``, principal point at the image centre) in the optical frame
+convention (x right, y down, z forward). Colour is the mean of 2x2 sub-pixel rays, sampled
+from a texture mip level matched to the pixel footprint; depth is the z-depth of the ray
+through the pixel centre.
+
+The camera follows a smooth closed loop whose phase runs once over the sequence, so the
+last frame sits one step before the first. Short sequences sway the view by up to 20 degrees
+around a forward look at the boxes; sequences of 18 s or more turn once around the whole
+room. The loop's size scales with the duration so speeds stay handheld: below 0.45 m/s and
+35 degrees/s at 30 Hz.
+
+With ``noise=True`` depth follows a Kinect-style structured-light model: Gaussian noise and
+1/8-pixel quantisation in disparity (so error grows with z squared), holes at random blobs,
+at depth discontinuities and at grazing angles; colour gets mild Gaussian noise, and the
+accelerometer noise and a constant bias. In both modes depth outside [0.4, 6.0] m reads 0.
+
+Folder layout (as TUM RGB-D)::
+
+    rgb/<stamp>.png      (H, W, 3) 8-bit colour
+    depth/<stamp>.png    (H, W) uint16, metres * 5000, 0 = no reading
+    rgb.txt, depth.txt   "timestamp filename" lists with TUM comment headers
+    groundtruth.txt      "t tx ty tz qx qy qz qw", world_from_camera at the colour stamps
+    accelerometer.txt    "t ax ay az", specific force in the camera frame, m/s^2
+    camera.yaml          width, height, fx, fy, cx, cy, distortion: [], depth_factor: 5000
+
+Colour stamps start at 1700000000.000000 s; each depth image carries its colour stamp plus
+5 ms, as in real Kinect logs, so readers must associate the two streams. Both images are
+rendered at the colour instant: at handheld speeds the 5 ms moves the view by less than the
+depth noise.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.errors import ConfigError
+from slamcli.geometry import make_pose, matrix_to_quat_xyzw
+from slamcli.rundir import RunDir, atomic_path
+from slamcli.types import PinholeCamera, ProgressFn, Trajectory
+
+log = logging.getLogger(__name__)
+
+F64 = NDArray[np.float64]
+F32 = NDArray[np.float32]
+
+FPS = 30.0
+"""Colour frame rate in Hz."""
+EPOCH_NS = 1_700_000_000 * 1_000_000_000
+"""Stamp of the first colour frame."""
+DEPTH_OFFSET_NS = 5_000_000
+"""Depth stamps lag the colour stamps by this much."""
+DEPTH_FACTOR = 5000
+"""Depth PNG units per metre (TUM convention)."""
+MIN_RANGE_M = 0.4
+MAX_RANGE_M = 6.0
+GRAVITY_MPS2 = 9.80665
+
+ROOM_MIN = np.array([-3.0, -2.5, 0.0])
+ROOM_MAX = np.array([3.0, 2.5, 2.6])
+LIGHT_POSITION = np.array([0.0, 0.0, 2.45])
+
+TEXEL_M = 0.005
+"""Edge of a texel at the finest mip level."""
+_MIP_LEVELS = 5
+_SUPERSAMPLE_OFFSETS = ((-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25))
+
+# Kinect v1 structured light: focal length (px) times projector baseline (m), and the
+# disparity noise and step in pixels; together they give sigma_z ~= 1.6 mm at 1 m, 6 mm at 2 m.
+_KINECT_FOCAL_BASELINE = 580.0 * 0.075
+_DISPARITY_SIGMA_PX = 0.07
+_DISPARITY_STEP_PX = 1.0 / 8.0
+_COLOUR_SIGMA = 1.0
+_ACCEL_SIGMA = 0.03
+_ACCEL_BIAS_SIGMA = 0.05
+_GRAZING_COS = 0.12
+
+# (centre x, centre y, bottom z, size x, size y, size z, yaw in degrees); all clear of the
+# camera loop, which stays within x in [-1.4, 0.6], |y| <= 0.75.
+_BOXES = (
+    (2.05, -0.90, 0.0, 0.80, 0.60, 0.50, 20.0),
+    (2.30, 0.70, 0.0, 0.50, 0.50, 0.90, -10.0),
+    (2.30, 0.70, 0.9, 0.30, 0.35, 0.25, 15.0),
+    (1.65, 1.75, 0.0, 0.40, 0.60, 0.35, 35.0),
+    (-2.30, 1.60, 0.0, 0.70, 0.50, 0.60, 0.0),
+    (-1.90, -1.80, 0.0, 0.60, 0.60, 0.40, -25.0),
+    (0.30, -2.10, 0.0, 1.00, 0.40, 0.75, 5.0),
+)
+
+_RNG_TEXTURES, _RNG_SENSOR, _RNG_IMU = 0, 1, 2
+
+
+@dataclass(frozen=True)
+class Surface:
+    """A textured rectangle: ``origin + a * u_axis + b * v_axis`` for a <= size_u, b <= size_v.
+
+    Attributes:
+        name: e.g. ``"floor"``, ``"wall+x"``, ``"box2.top"``.
+        kind: texture family: ``floor``, ``wall``, ``ceiling`` or ``box``.
+        origin: (3,) metres, world frame.
+        u_axis, v_axis: (3,) orthonormal edge directions.
+        size_u, size_v: edge lengths in metres.
+    """
+
+    name: str
+    kind: str
+    origin: F64
+    u_axis: F64
+    v_axis: F64
+    size_u: float
+    size_v: float
+
+    @property
+    def normal(self) -> F64:
+        """(3,) unit normal ``u_axis x v_axis``."""
+        return np.cross(self.u_axis, self.v_axis)
+
+    def corners(self) -> F64:
+        """(4, 3) corners, counter-clockwise around ``normal``."""
+        u, v = self.u_axis * self.size_u, self.v_axis * self.size_v
+        return np.stack([self.origin, self.origin + u, self.origin + u + v, self.origin + v])
+
+
+@dataclass(frozen=True)
+class RoomScene:
+    """The room's surfaces and their textures.
+
+    Attributes:
+        surfaces: every rectangle; surface ``i`` is triangles ``2i`` and ``2i + 1`` of the mesh.
+        textures: per surface, mip levels of (rows, cols, 3) uint8 RGB; level ``l`` has texels of
+            ``TEXEL_M * 2**l`` metres; columns run along ``u``, rows against ``v`` (row 0 at
+            ``b = size_v``), so an upright image reads upright on a wall.
+    """
+
+    surfaces: tuple[Surface, ...]
+    textures: tuple[tuple[NDArray[np.uint8], ...], ...]
+
+    def mesh(self) -> tuple[F64, NDArray[np.int64]]:
+        """Vertices (4S, 3) float64 metres and faces (2S, 3) int64 of all surfaces."""
+        vertices = np.concatenate([s.corners() for s in self.surfaces])
+        base = 4 * np.arange(len(self.surfaces))[:, None]
+        faces = np.concatenate(
+            [base + np.array([0, 1, 2]), base + np.array([0, 2, 3])], axis=1
+        ).reshape(-1, 3)
+        return vertices, faces.astype(np.int64)
+
+    @property
+    def normals(self) -> F64:
+        """(S, 3) unit normals of the surfaces."""
+        return np.stack([s.normal for s in self.surfaces])
+
+
+def room_scene(seed: int = 0) -> RoomScene:
+    """Build the room with its boxes and seeded textures (same seed -> identical textures)."""
+    import cv2
+
+    cv2.setRNGSeed(seed)
+    rng = np.random.default_rng([seed, _RNG_TEXTURES])
+    surfaces = _room_surfaces()
+    textures = []
+    for s in surfaces:
+        cols = max(8, round(s.size_u / TEXEL_M))
+        rows = max(8, round(s.size_v / TEXEL_M))
+        level0 = _texture(rng, rows, cols, s.kind)
+        levels: list[NDArray[np.uint8]] = [level0]
+        for _ in range(1, _MIP_LEVELS):
+            prev = levels[-1]
+            if min(prev.shape[:2]) < 4:
+                break
+            levels.append(np.asarray(cv2.pyrDown(prev), dtype=np.uint8))
+        textures.append(tuple(levels))
+    return RoomScene(tuple(surfaces), tuple(textures))
+
+
+def _room_surfaces() -> list[Surface]:
+    x0, y0, z0 = ROOM_MIN
+    x1, y1, z1 = ROOM_MAX
+    ex, ey, ez = np.eye(3)
+    sx, sy, sz = ROOM_MAX - ROOM_MIN
+    surfaces = [
+        Surface("floor", "floor", np.array([x0, y0, z0]), ex, ey, sx, sy),
+        Surface("ceiling", "ceiling", np.array([x0, y1, z1]), ex, -ey, sx, sy),
+        # Walls run left to right as seen from inside the room, so text on them reads.
+        Surface("wall-y", "wall", np.array([x1, y0, z0]), -ex, ez, sx, sz),
+        Surface("wall+x", "wall", np.array([x1, y1, z0]), -ey, ez, sy, sz),
+        Surface("wall+y", "wall", np.array([x0, y1, z0]), ex, ez, sx, sz),
+        Surface("wall-x", "wall", np.array([x0, y0, z0]), ey, ez, sy, sz),
+    ]
+    for i, (cx, cy, bz, bx, by, bh, yaw_deg) in enumerate(_BOXES):
+        c, s = math.cos(math.radians(yaw_deg)), math.sin(math.radians(yaw_deg))
+        ax, ay = np.array([c, s, 0.0]), np.array([-s, c, 0.0])
+        base = np.array([cx, cy, bz]) - ax * bx / 2 - ay * by / 2
+        corners = [base, base + ax * bx, base + ax * bx + ay * by, base + ay * by]
+        edges = [(ax, bx), (ay, by), (-ax, bx), (-ay, by)]
+        for k, (corner, (axis, length)) in enumerate(zip(corners, edges, strict=True)):
+            surfaces.append(Surface(f"box{i}.side{k}", "box", corner, axis, ez, length, bh))
+        top = base + np.array([0.0, 0.0, bh])
+        surfaces.append(Surface(f"box{i}.top", "box", top, ax, ay, bx, by))
+    return surfaces
+
+
+_PALETTES: dict[str, tuple[tuple[int, int, int], ...]] = {
+    "floor": ((150, 110, 75), (120, 95, 70), (165, 140, 110), (95, 85, 80)),
+    "wall": ((215, 210, 195), (190, 205, 215), (220, 200, 180), (200, 215, 195)),
+    "ceiling": ((225, 225, 220), (210, 212, 215)),
+    "box": ((185, 150, 105), (160, 125, 85), (120, 140, 160), (175, 60, 50)),
+}
+# Decorations per square metre: (posters/rugs, medium shapes, small shapes, text lines).
+_DENSITY: dict[str, tuple[float, float, float, float]] = {
+    "floor": (0.5, 10.0, 45.0, 1.0),
+    "wall": (1.4, 12.0, 55.0, 3.0),
+    "ceiling": (0.3, 5.0, 25.0, 0.5),
+    "box": (2.0, 14.0, 60.0, 6.0),
+}
+
+
+def _texture(rng: np.random.Generator, rows: int, cols: int, kind: str) -> NDArray[np.uint8]:
+    """One surface texture: (rows, cols, 3) uint8 RGB at ``TEXEL_M`` metres per texel."""
+    import cv2
+
+    palette = _PALETTES[kind]
+    base = np.array(palette[rng.integers(len(palette))], dtype=np.float32)
+    coarse = rng.normal(0.0, 14.0, (rows // 48 + 2, cols // 48 + 2, 3)).astype(np.float32)
+    img: F32 = base + cv2.resize(coarse, (cols, rows), interpolation=cv2.INTER_CUBIC)
+    if kind in ("floor", "ceiling"):
+        _tiles(rng, img, 0.6 if kind == "ceiling" else float(rng.uniform(0.3, 0.5)))
+    area = rows * cols * TEXEL_M**2
+    n_large, n_medium, n_small, n_text = (rng.poisson(d * area) for d in _DENSITY[kind])
+    for _ in range(n_large):
+        _poster(rng, img)
+    for _ in range(n_medium):
+        _shape(rng, img, rng.uniform(0.04, 0.15) / TEXEL_M)
+    for _ in range(n_small):
+        _shape(rng, img, rng.uniform(0.012, 0.04) / TEXEL_M)
+    for _ in range(n_text):
+        _text(rng, img)
+    blurred = cv2.GaussianBlur(img, (0, 0), 0.6)
+    return np.clip(np.rint(blurred), 0, 255).astype(np.uint8)
+
+
+def _colour(rng: np.random.Generator) -> tuple[float, float, float]:
+    c = rng.integers(0, 256, 3)
+    return float(c[0]), float(c[1]), float(c[2])
+
+
+def _tiles(rng: np.random.Generator, img: F32, tile_m: float) -> None:
+    rows, cols = img.shape[:2]
+    step = max(4, round(tile_m / TEXEL_M))
+    ny, nx = rows // step + 1, cols // step + 1
+    shade = rng.normal(0.0, 12.0, (ny, nx, 1)).astype(np.float32)
+    img += np.repeat(np.repeat(shade, step, 0), step, 1)[:rows, :cols]
+    grout = np.float32(0.55)
+    img[::step] *= grout
+    img[1::step] *= grout
+    img[:, ::step] *= grout
+    img[:, 1::step] *= grout
+
+
+def _poster(rng: np.random.Generator, img: F32) -> None:
+    rows, cols = img.shape[:2]
+    h = min(rows - 2, round(rng.uniform(0.15, 0.7) / TEXEL_M))
+    w = min(cols - 2, round(rng.uniform(0.15, 0.8) / TEXEL_M))
+    if h < 4 or w < 4:
+        return
+    r0, c0 = int(rng.integers(0, rows - h)), int(rng.integers(0, cols - w))
+    patch = img[r0 : r0 + h, c0 : c0 + w]
+    style = rng.integers(3)
+    if style == 0:
+        cell = max(2, round(rng.uniform(0.015, 0.08) / TEXEL_M))
+        ii, jj = np.indices((h, w))
+        parity = ((ii // cell + jj // cell) % 2).astype(bool)
+        patch[...] = _colour(rng)
+        patch[parity] = _colour(rng)
+    elif style == 1:
+        width = max(2, round(rng.uniform(0.01, 0.05) / TEXEL_M))
+        ii, jj = np.indices((h, w))
+        diagonal = rng.integers(2) == 1
+        band = ((ii + jj) if diagonal else jj) // width % 2 == 1
+        patch[...] = _colour(rng)
+        patch[band] = _colour(rng)
+    else:
+        patch[...] = _colour(rng)
+        for _ in range(int(rng.integers(4, 12))):
+            _shape(rng, patch, rng.uniform(0.2, 0.5) * min(h, w))
+    frame = max(1, round(0.01 / TEXEL_M))
+    dark = np.float32(0.3)
+    img[r0 : r0 + frame, c0 : c0 + w] *= dark
+    img[r0 + h - frame : r0 + h, c0 : c0 + w] *= dark
+    img[r0 : r0 + h, c0 : c0 + frame] *= dark
+    img[r0 : r0 + h, c0 + w - frame : c0 + w] *= dark
+
+
+def _shape(rng: np.random.Generator, img: F32, size_px: float) -> None:
+    import cv2
+
+    rows, cols = img.shape[:2]
+    size = max(2.0, float(size_px))
+    cx, cy = rng.uniform(0, cols), rng.uniform(0, rows)
+    colour = _colour(rng)
+    kind = rng.integers(4)
+    if kind == 0:
+        angle = rng.uniform(0, np.pi)
+        half = np.array([size, size * rng.uniform(0.3, 1.0)]) / 2
+        c, s = math.cos(angle), math.sin(angle)
+        local = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
+        pts = local @ np.array([[c, s], [-s, c]]) + [cx, cy]
+        cv2.fillPoly(img, [np.rint(pts).astype(np.int32)], colour, cv2.LINE_AA)
+    elif kind == 1:
+        n = int(rng.integers(3, 7))
+        angles = np.sort(rng.uniform(0, 2 * np.pi, n))
+        radii = size / 2 * rng.uniform(0.5, 1.0, n)
+        pts = np.stack([cx + radii * np.cos(angles), cy + radii * np.sin(angles)], axis=1)
+        cv2.fillPoly(img, [np.rint(pts).astype(np.int32)], colour, cv2.LINE_AA)
+    elif kind == 2:
+        radius = max(1, round(size / 2))
+        cv2.circle(img, (round(cx), round(cy)), radius, colour, -1, cv2.LINE_AA)
+    else:
+        thick = max(1, round(size * rng.uniform(0.08, 0.2)))
+        angle = rng.uniform(0, np.pi)
+        dx, dy = size / 2 * math.cos(angle), size / 2 * math.sin(angle)
+        p0, p1 = (round(cx - dx), round(cy - dy)), (round(cx + dx), round(cy + dy))
+        cv2.line(img, p0, p1, colour, thick, cv2.LINE_AA)
+        if rng.integers(2):
+            p2, p3 = (round(cx + dy), round(cy - dx)), (round(cx - dy), round(cy + dx))
+            cv2.line(img, p2, p3, colour, thick, cv2.LINE_AA)
+
+
+_LETTERS = np.array(list("ABCDEFGHJKLMNPQRSTUVWXYZ0123456789#+="))
+
+
+def _text(rng: np.random.Generator, img: F32) -> None:
+    import cv2
+
+    rows, cols = img.shape[:2]
+    height_px = rng.uniform(0.025, 0.09) / TEXEL_M
+    scale = height_px / 22.0
+    text = "".join(rng.choice(_LETTERS, int(rng.integers(3, 9))))
+    thickness = max(1, round(scale * 2))
+    colour = np.array(_colour(rng), dtype=np.float32)
+    (w, h), baseline = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)
+    h += baseline + thickness
+    w += thickness
+    if w >= cols or h >= rows:
+        return
+    r0, c0 = int(rng.integers(0, rows - h)), int(rng.integers(0, cols - w))
+    # putText draws only on 8-bit images: render coverage, then blend the colour by it.
+    alpha = np.zeros((h, w), dtype=np.uint8)
+    org = (thickness // 2, h - baseline - thickness // 2)
+    cv2.putText(alpha, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, 255, thickness, cv2.LINE_AA)
+    a = (alpha.astype(np.float32) / 255.0)[..., None]
+    patch = img[r0 : r0 + h, c0 : c0 + w]
+    patch[...] = patch * (1.0 - a) + colour * a
+
+
+def camera_for_size(width: int, height: int) -> PinholeCamera:
+    """The synthetic camera: ``fx = fy = 0.8 * width``, principal point at the image centre."""
+    f = 0.8 * width
+    return PinholeCamera(width, height, f, f, (width - 1) / 2.0, (height - 1) / 2.0, ())
+
+
+@dataclass(frozen=True)
+class _PathShape:
+    """Amplitudes of the camera loop for one sequence duration (metres and radians)."""
+
+    duration_s: float
+    radius_x: float
+    radius_y: float
+    height_amp: float
+    full_turn: bool
+    yaw_amp: float
+    pitch_amp: float
+    roll_amp: float
+
+    @classmethod
+    def for_duration(cls, duration_s: float) -> _PathShape:
+        # Each amplitude is the smaller of a size that looks natural and the one whose peak
+        # rate (amplitude x angular frequency) stays at a handheld limit.
+        w1 = 2 * math.pi / duration_s
+        radius_x = min(1.0, 0.40 / w1)
+        return cls(
+            duration_s=duration_s,
+            radius_x=radius_x,
+            radius_y=0.75 * radius_x,
+            height_amp=min(0.10, 0.04 / (2 * w1)),
+            full_turn=duration_s >= 18.0,
+            yaw_amp=min(math.radians(20.0), math.radians(24.0) / w1),
+            pitch_amp=min(math.radians(6.0), math.radians(8.0) / (2 * w1)),
+            roll_amp=min(math.radians(3.0), math.radians(4.0) / w1),
+        )
+
+
+_PATH_CENTRE = np.array([-0.4, 0.0, 1.35])
+_PITCH0 = math.radians(-17.0)
+
+
+def _path_position(shape: _PathShape, t_s: F64) -> tuple[F64, F64]:
+    """Positions (N, 3) m and accelerations (N, 3) m/s^2 of the camera at times ``t_s`` (N,)."""
+    w1 = 2 * math.pi / shape.duration_s
+    phase = w1 * t_s
+    pos = np.stack(
+        [
+            shape.radius_x * np.cos(phase),
+            shape.radius_y * np.sin(phase),
+            shape.height_amp * np.sin(2 * phase),
+        ],
+        axis=1,
+    )
+    acc = -np.stack(
+        [
+            w1**2 * shape.radius_x * np.cos(phase),
+            w1**2 * shape.radius_y * np.sin(phase),
+            (2 * w1) ** 2 * shape.height_amp * np.sin(2 * phase),
+        ],
+        axis=1,
+    )
+    return pos + _PATH_CENTRE, acc
+
+
+def _path_rotation(shape: _PathShape, t_s: F64) -> F64:
+    """World-from-camera rotations (N, 3, 3) at times ``t_s`` (N,), optical frame."""
+    phase = 2 * math.pi * t_s / shape.duration_s
+    yaw = shape.yaw_amp * np.sin(phase + 0.7) + (phase if shape.full_turn else 0.0)
+    pitch = _PITCH0 + shape.pitch_amp * np.sin(2 * phase + 0.3)
+    roll = shape.roll_amp * np.sin(phase + 1.1)
+    forward = np.stack(
+        [np.cos(pitch) * np.cos(yaw), np.cos(pitch) * np.sin(yaw), np.sin(pitch)], axis=1
+    )
+    right = np.cross(forward, np.array([0.0, 0.0, 1.0]))
+    right /= np.linalg.norm(right, axis=1, keepdims=True)
+    down = np.cross(forward, right)
+    cr, sr = np.cos(roll)[:, None], np.sin(roll)[:, None]
+    x_axis = cr * right + sr * down
+    y_axis = -sr * right + cr * down
+    return np.stack([x_axis, y_axis, forward], axis=2)
+
+
+def camera_path(frames: int, fps: float = FPS) -> Trajectory:
+    """Ground-truth world_from_camera poses (frames, 4, 4) at the colour stamps."""
+    stamps_ns = colour_stamps_ns(frames, fps)
+    t_s = (stamps_ns - EPOCH_NS).astype(np.float64) * 1e-9
+    shape = _PathShape.for_duration(frames / fps)
+    pos, _ = _path_position(shape, t_s)
+    return Trajectory(stamps_ns, make_pose(_path_rotation(shape, t_s), pos))
+
+
+def colour_stamps_ns(frames: int, fps: float = FPS) -> NDArray[np.int64]:
+    """(frames,) int64 colour stamps, rounded to whole microseconds so 6 decimals are exact."""
+    us = np.rint(np.arange(frames) * (1e6 / fps)).astype(np.int64)
+    return EPOCH_NS + us * 1000
+
+
+def accelerometer(frames: int, fps: float = FPS) -> F64:
+    """Noise-free specific force (frames, 3) in m/s^2 in the camera frame at the colour stamps.
+
+    ``f = R_wc^T (a_w - g_w)`` with ``g_w = (0, 0, -9.80665)``, so a camera at rest reads
+    +9.81 m/s^2 along the world's up direction.
+    """
+    stamps_ns = colour_stamps_ns(frames, fps)
+    t_s = (stamps_ns - EPOCH_NS).astype(np.float64) * 1e-9
+    shape = _PathShape.for_duration(frames / fps)
+    _, acc = _path_position(shape, t_s)
+    rot = _path_rotation(shape, t_s)
+    specific = acc + np.array([0.0, 0.0, GRAVITY_MPS2])
+    return np.einsum("nji,nj->ni", rot, specific)
+
+
+@dataclass
+class RgbdWorld:
+    """Everything needed to render the sequence: scene, camera and ground-truth poses.
+
+    Attributes:
+        scene: surfaces and textures.
+        camera: intrinsics of both images.
+        trajectory: world_from_camera poses at the colour stamps.
+        depth_stamps_ns: (N,) int64 stamps of the depth images.
+    """
+
+    scene: RoomScene
+    camera: PinholeCamera
+    trajectory: Trajectory
+    depth_stamps_ns: NDArray[np.int64]
+    _raycaster: Any = field(default=None, repr=False)
+
+    def cast(self, world_from_cam: F64) -> tuple[F32, NDArray[np.int32]]:
+        """Ray cast through the pixel centres from a (4, 4) world_from_camera pose.
+
+        Returns:
+            depth (H, W) float32 z-depth in metres (inf where nothing is hit, no range limit),
+            surface (H, W) int32 index into ``scene.surfaces`` (-1 where nothing is hit).
+        """
+        t, sid = self._cast(world_from_cam, self._directions(world_from_cam, ((0.0, 0.0),)))
+        return t[0], sid[0]
+
+    def render(
+        self, world_from_cam: F64, rng: np.random.Generator | None = None
+    ) -> tuple[NDArray[np.uint8], F32]:
+        """Render one view from a (4, 4) world_from_camera pose.
+
+        Args:
+            world_from_cam: (4, 4) pose of the optical frame.
+            rng: the noise generator; None renders without sensor noise.
+
+        Returns:
+            rgb (H, W, 3) uint8 and depth (H, W) float32 metres, 0 = no reading.
+        """
+        offsets = ((0.0, 0.0), *_SUPERSAMPLE_OFFSETS)
+        rays = self._directions(world_from_cam, offsets)
+        t, sid = self._cast(world_from_cam, rays)
+        origin = world_from_cam[:3, 3].astype(np.float32)
+        colour = self._shade(origin, rays[1:], t[1:], sid[1:]).mean(axis=0)
+        depth = t[0].copy()
+        if rng is not None:
+            depth = _kinect_depth(depth, sid[0], rays[0], self.scene.normals, rng)
+            colour += rng.normal(0.0, _COLOUR_SIGMA, colour.shape).astype(np.float32)
+        depth[~((depth >= MIN_RANGE_M) & (depth <= MAX_RANGE_M))] = 0.0
+        rgb = np.clip(np.rint(colour), 0, 255).astype(np.uint8)
+        return rgb, depth.astype(np.float32)
+
+    def _directions(self, world_from_cam: F64, offsets: tuple[tuple[float, float], ...]) -> F32:
+        """World ray directions (K, H, W, 3) with unit z in the camera frame, per pixel offset."""
+        cam = self.camera
+        u = np.arange(cam.width, dtype=np.float64)
+        v = np.arange(cam.height, dtype=np.float64)
+        out = np.empty((len(offsets), cam.height, cam.width, 3), dtype=np.float32)
+        rot = world_from_cam[:3, :3]
+        for k, (du, dv) in enumerate(offsets):
+            x = ((u + du - cam.cx) / cam.fx)[None, :]
+            y = ((v + dv - cam.cy) / cam.fy)[:, None]
+            d_cam = np.stack(np.broadcast_arrays(x, y, np.ones_like(x * y)), axis=-1)
+            out[k] = d_cam @ rot.T
+        return out
+
+    def _cast(self, world_from_cam: F64, dirs: F32) -> tuple[F32, NDArray[np.int32]]:
+        """Hit z-depth (K, H, W) and surface index (K, H, W) of rays from the camera centre."""
+        import open3d as o3d
+
+        if self._raycaster is None:
+            vertices, faces = self.scene.mesh()
+            caster = o3d.t.geometry.RaycastingScene()
+            caster.add_triangles(
+                o3d.core.Tensor.from_numpy(np.ascontiguousarray(vertices, dtype=np.float32)),
+                o3d.core.Tensor.from_numpy(np.ascontiguousarray(faces, dtype=np.uint32)),
+            )
+            self._raycaster = caster
+        origin = np.broadcast_to(world_from_cam[:3, 3].astype(np.float32), dirs.shape)
+        rays = np.ascontiguousarray(np.concatenate([origin, dirs], axis=-1))
+        hits = self._raycaster.cast_rays(o3d.core.Tensor.from_numpy(rays))
+        t = hits["t_hit"].numpy().astype(np.float32)
+        prim = hits["primitive_ids"].numpy().astype(np.int64)
+        missed = ~np.isfinite(t)
+        sid = np.where(missed, -1, prim // 2).astype(np.int32)
+        return t, sid
+
+    def _shade(self, origin: NDArray[np.float32], dirs: F32, t: F32, sid: NDArray[np.int32]) -> F32:
+        """Shaded texture colour (K, H, W, 3) float32 of each ray's hit (black for misses)."""
+        shape = t.shape
+        sid = sid.reshape(-1)
+        hit = sid >= 0
+        s = np.maximum(sid, 0)
+        d = dirs.reshape(-1, 3)
+        points = origin + np.where(hit, t.reshape(-1), 0.0)[:, None] * d
+        table = self._surface_table()
+        rel = points - table["origin"][s]
+        a = np.einsum("ij,ij->i", rel, table["u"][s])
+        b = np.einsum("ij,ij->i", rel, table["v"][s])
+        normal = table["normal"][s]
+        d_norm = np.linalg.norm(d, axis=1)
+        cos_inc = np.abs(np.einsum("ij,ij->i", d, normal)) / d_norm
+        # A sub-pixel ray covers half a pixel; its footprint on the surface grows with depth
+        # and with the slant of the surface, and picks the mip level with matching texels.
+        ray_length = np.where(hit, t.reshape(-1), 0.0) * d_norm
+        footprint = ray_length / (2.0 * self.camera.fx * np.maximum(cos_inc, 0.2))
+        level = np.floor(np.log2(np.maximum(footprint / TEXEL_M, 1e-6)) + 0.5)
+        level = np.clip(level, 0, table["levels"][s] - 1).astype(np.int64)
+        key = np.where(hit, s * _MIP_LEVELS + level, -1)
+        order = np.argsort(key, kind="stable")
+        keys, starts = np.unique(key[order], return_index=True)
+        ends = np.append(starts[1:], key.size)
+        colours = np.zeros((key.size, 3), dtype=np.float32)
+        for k, start, end in zip(keys, starts, ends, strict=True):
+            if k < 0:
+                continue
+            surface, lv = divmod(int(k), _MIP_LEVELS)
+            idx = order[start:end]
+            texel = TEXEL_M * 2.0**lv
+            rows = (table["size_v"][surface] - b[idx]) / texel - 0.5
+            colours[idx] = _sample(self.scene.textures[surface][lv], a[idx] / texel - 0.5, rows)
+        to_light = LIGHT_POSITION.astype(np.float32) - points
+        dist2 = np.einsum("ij,ij->i", to_light, to_light)
+        lambert = np.abs(np.einsum("ij,ij->i", to_light, normal)) / np.sqrt(dist2)
+        shade = 0.45 + 0.75 * lambert / (1.0 + 0.12 * dist2)
+        return (colours * shade[:, None].astype(np.float32)).reshape(*shape, 3)
+
+    def _surface_table(self) -> dict[str, NDArray[Any]]:
+        """Per-surface arrays for vectorised lookups: origin, u, v, normal (S, 3) float32,
+        size_v (S,) float32 and the number of mip levels (S,) int64."""
+        surfaces = self.scene.surfaces
+        return {
+            "origin": np.stack([x.origin for x in surfaces]).astype(np.float32),
+            "u": np.stack([x.u_axis for x in surfaces]).astype(np.float32),
+            "v": np.stack([x.v_axis for x in surfaces]).astype(np.float32),
+            "normal": self.scene.normals.astype(np.float32),
+            "size_v": np.array([x.size_v for x in surfaces], dtype=np.float32),
+            "levels": np.array([len(t) for t in self.scene.textures], dtype=np.int64),
+        }
+
+
+def _sample(texture: NDArray[np.uint8], cols: F32, rows: F32) -> F32:
+    """Bilinear texture lookup at (M,) fractional texel coordinates -> (M, 3) float32."""
+    import cv2
+
+    m = cols.size
+    width = 1024
+    height = -(-m // width)
+    map_x = np.zeros(height * width, dtype=np.float32)
+    map_y = np.zeros(height * width, dtype=np.float32)
+    map_x[:m], map_y[:m] = cols, rows
+    # cv2.remap caps each output side below 32767, so the samples are laid out in rows.
+    sampled = cv2.remap(
+        texture,
+        map_x.reshape(height, width),
+        map_y.reshape(height, width),
+        interpolation=cv2.INTER_LINEAR,
+        borderMode=cv2.BORDER_REFLECT_101,
+    )
+    return np.asarray(sampled.reshape(-1, 3)[:m], dtype=np.float32)
+
+
+def _kinect_depth(
+    depth: F32, sid: NDArray[np.int32], dirs: F32, normals: F64, rng: np.random.Generator
+) -> F32:
+    """Apply the structured-light depth model to a clean z-depth image (H, W) in metres."""
+    import cv2
+
+    h, w = depth.shape
+    valid = np.isfinite(depth) & (depth > 0)
+    z = np.where(valid, depth, 1.0).astype(np.float64)
+    disparity = _KINECT_FOCAL_BASELINE / z + rng.normal(0.0, _DISPARITY_SIGMA_PX, (h, w))
+    disparity = np.maximum(np.rint(disparity / _DISPARITY_STEP_PX), 1.0) * _DISPARITY_STEP_PX
+    noisy: F32 = np.asarray(_KINECT_FOCAL_BASELINE / disparity, dtype=np.float32)
+
+    holes = ~valid
+    coarse = rng.standard_normal((h // 12 + 3, w // 12 + 3)).astype(np.float32)
+    blobs = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC)
+    holes |= blobs > 2.0
+    # Structured light loses the pattern where depth jumps: both sides of the edge go dark.
+    jump = 0.03 + 0.02 * z
+    edge = np.zeros((h, w), dtype=bool)
+    dx = np.abs(np.diff(z, axis=1)) > np.maximum(jump[:, 1:], jump[:, :-1])
+    dy = np.abs(np.diff(z, axis=0)) > np.maximum(jump[1:], jump[:-1])
+    edge[:, 1:] |= dx
+    edge[:, :-1] |= dx
+    edge[1:] |= dy
+    edge[:-1] |= dy
+    edge = cv2.dilate(edge.astype(np.uint8), np.ones((3, 3), np.uint8)).astype(bool)
+    holes |= edge
+    n = normals[np.clip(sid, 0, None)]
+    cos_inc = np.abs(np.einsum("hwc,hwc->hw", n, dirs)) / np.linalg.norm(dirs, axis=-1)
+    holes |= cos_inc < _GRAZING_COS
+    noisy[holes] = 0.0
+    return noisy
+
+
+def build_rgbd_world(frames: int, size: tuple[int, int] = (640, 480), seed: int = 0) -> RgbdWorld:
+    """The scene, camera and ground-truth trajectory of a sequence, without writing anything.
+
+    Args:
+        frames: number of colour/depth pairs (>= 2).
+        size: (width, height) in pixels.
+        seed: texture seed (the camera path depends only on ``frames``).
+    """
+    _check_options(frames, size)
+    trajectory = camera_path(frames)
+    return RgbdWorld(
+        scene=room_scene(seed),
+        camera=camera_for_size(*size),
+        trajectory=trajectory,
+        depth_stamps_ns=trajectory.stamps_ns + DEPTH_OFFSET_NS,
+    )
+
+
+def _check_options(frames: int, size: tuple[int, int]) -> None:
+    if frames < 2:
+        raise ConfigError(f"frames: expected at least 2, got {frames}")
+    width, height = size
+    if not (16 <= width <= 4096 and 16 <= height <= 4096):
+        raise ConfigError(
+            f"size: expected width and height in [16, 4096] pixels, got {width}x{height}"
+        )
+
+
+def format_stamp(stamp_ns: int) -> str:
+    """Seconds with exactly six decimals, from whole-microsecond int nanoseconds."""
+    sec, ns = divmod(int(stamp_ns), 1_000_000_000)
+    return f"{sec}.{ns // 1000:06d}"
+
+
+def render_rgbd_sequence(
+    out: str | Path,
+    frames: int = 300,
+    size: tuple[int, int] = (640, 480),
+    seed: int = 0,
+    noise: bool = False,
+    force: bool = False,
+    progress: ProgressFn | None = None,
+) -> dict[str, Any]:
+    """Render a sequence into ``out`` as a TUM RGB-D folder (layout in the module docstring).
+
+    Args:
+        out: output folder; must be empty or absent unless ``force``.
+        frames: number of colour/depth pairs (>= 2), at 30 Hz.
+        size: (width, height) in pixels.
+        seed: seeds the textures and all noise; same arguments -> bit-identical files.
+        noise: apply the Kinect-style depth model, colour and accelerometer noise.
+        force: write into a non-empty folder; stale images from an earlier run are removed.
+        progress: called as ``progress(done, frames)`` after each frame.
+
+    Returns:
+        Summary: ``frames``, ``size``, ``camera`` (dict), ``duration_s``, ``path_length_m``,
+        ``max_speed_mps``, ``max_rotation_dps``, ``closure_m``, ``closure_deg``, ``seed``,
+        ``noise``, ``hole_fraction`` (mean share of depth pixels with no reading), ``out`` and
+        ``files`` (paths of the index files, then the image folders).
+    """
+    import cv2
+
+    world = build_rgbd_world(frames, size, seed)
+    run = RunDir(out, force=force)
+    rgb_dir, depth_dir = run.path / "rgb", run.path / "depth"
+    rgb_dir.mkdir(exist_ok=True)
+    depth_dir.mkdir(exist_ok=True)
+    noise_rng = np.random.default_rng([seed, _RNG_SENSOR]) if noise else None
+    traj = world.trajectory
+    rgb_names = [f"rgb/{format_stamp(s)}.png" for s in traj.stamps_ns]
+    depth_names = [f"depth/{format_stamp(s)}.png" for s in world.depth_stamps_ns]
+    holes = 0
+    png = [cv2.IMWRITE_PNG_COMPRESSION, 6]
+    for i in range(frames):
+        pose = traj.world_from_body[i]
+        rgb, depth = world.render(pose, noise_rng)
+        holes += int(np.count_nonzero(depth == 0))
+        raw = np.rint(depth.astype(np.float64) * DEPTH_FACTOR).astype(np.uint16)
+        with atomic_path(run.path / rgb_names[i]) as tmp:
+            _imwrite(tmp, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), png)
+        with atomic_path(run.path / depth_names[i]) as tmp:
+            _imwrite(tmp, raw, png)
+        if progress is not None:
+            progress(i + 1, frames)
+    _remove_stale(rgb_dir, {Path(n).name for n in rgb_names})
+    _remove_stale(depth_dir, {Path(n).name for n in depth_names})
+
+    origin = f"slamcli synth rgbd, {frames} frames, {size[0]}x{size[1]}, seed {seed}, " + (
+        "noise" if noise else "no noise"
+    )
+    files = [
+        run.write_text("rgb.txt", _index("color images", origin, traj.stamps_ns, rgb_names)),
+        run.write_text(
+            "depth.txt", _index("depth maps", origin, world.depth_stamps_ns, depth_names)
+        ),
+        run.write_text("groundtruth.txt", _groundtruth_text(origin, traj)),
+        run.write_text("accelerometer.txt", _accelerometer_text(origin, frames, seed, noise)),
+        run.write_text("camera.yaml", _camera_yaml(world.camera)),
+    ]
+    summary = _summary(world, seed, noise)
+    summary["hole_fraction"] = holes / (frames * size[0] * size[1])
+    summary["out"] = str(run.path)
+    summary["files"] = [str(p) for p in files] + [str(rgb_dir), str(depth_dir)]
+    log.info("rendered %d frames into %s", frames, run.path)
+    return summary
+
+
+def _imwrite(path: Path, image: NDArray[Any], params: list[int]) -> None:
+    import cv2
+
+    from slamcli.errors import ExportError
+
+    if not cv2.imwrite(str(path), image, params):
+        raise ExportError(f"{path}: OpenCV could not write the image")
+
+
+def _remove_stale(folder: Path, keep: set[str]) -> None:
+    for p in sorted(folder.glob("*.png")):
+        if p.name not in keep:
+            log.info("removing %s left by an earlier run", p)
+            p.unlink()
+
+
+def _index(what: str, origin: str, stamps_ns: NDArray[np.int64], names: list[str]) -> str:
+    lines = [f"# {what}", f"# file: '{origin}'", "# timestamp filename"]
+    lines += [f"{format_stamp(s)} {n}" for s, n in zip(stamps_ns, names, strict=True)]
+    return "\n".join(lines) + "\n"
+
+
+def _groundtruth_text(origin: str, traj: Trajectory) -> str:
+    quats = matrix_to_quat_xyzw(traj.world_from_body[:, :3, :3])
+    lines = ["# ground truth trajectory", f"# file: '{origin}'", "# timestamp tx ty tz qx qy qz qw"]
+    for s, p, q in zip(traj.stamps_ns, traj.positions, quats, strict=True):
+        values = " ".join(f"{v:.7f}" for v in (*p, *q))
+        lines.append(f"{format_stamp(s)} {values}")
+    return "\n".join(lines) + "\n"
+
+
+def _accelerometer_text(origin: str, frames: int, seed: int, noise: bool) -> str:
+    acc = accelerometer(frames)
+    if noise:
+        rng = np.random.default_rng([seed, _RNG_IMU])
+        bias = rng.normal(0.0, _ACCEL_BIAS_SIGMA, 3)
+        acc = acc + bias + rng.normal(0.0, _ACCEL_SIGMA, acc.shape)
+    lines = ["# accelerometer data", f"# file: '{origin}'", "# timestamp ax ay az"]
+    for s, a in zip(colour_stamps_ns(frames), acc, strict=True):
+        lines.append(f"{format_stamp(s)} {a[0]:.6f} {a[1]:.6f} {a[2]:.6f}")
+    return "\n".join(lines) + "\n"
+
+
+def _camera_yaml(cam: PinholeCamera) -> str:
+    return (
+        "# synthetic pinhole camera, no distortion; depth PNG value = metres * depth_factor\n"
+        f"width: {cam.width}\nheight: {cam.height}\n"
+        f"fx: {cam.fx!r}\nfy: {cam.fy!r}\ncx: {cam.cx!r}\ncy: {cam.cy!r}\n"
+        f"distortion: []\ndepth_factor: {DEPTH_FACTOR}\n"
+    )
+
+
+def _summary(world: RgbdWorld, seed: int, noise: bool) -> dict[str, Any]:
+    from slamcli.geometry import rotation_angle
+
+    traj = world.trajectory
+    poses = traj.world_from_body
+    dt = np.diff(traj.stamps_ns).astype(np.float64) * 1e-9
+    step = np.linalg.norm(np.diff(traj.positions, axis=0), axis=1)
+    rel = np.einsum("nji,njk->nik", poses[:-1, :3, :3], poses[1:, :3, :3])
+    turn = rotation_angle(rel)
+    closure_rot = poses[0, :3, :3].T @ poses[-1, :3, :3]
+    return {
+        "frames": len(traj),
+        "size": [world.camera.width, world.camera.height],
+        "camera": world.camera.to_dict(),
+        "duration_s": float(traj.stamps_ns[-1] - traj.stamps_ns[0]) * 1e-9,
+        "path_length_m": traj.path_length(),
+        "max_speed_mps": float(np.max(step / dt)),
+        "max_rotation_dps": float(np.degrees(np.max(turn / dt))),
+        "closure_m": float(np.linalg.norm(traj.positions[-1] - traj.positions[0])),
+        "closure_deg": float(np.degrees(rotation_angle(closure_rot))),
+        "seed": seed,
+        "noise": noise,
+    }
