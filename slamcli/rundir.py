@@ -8,6 +8,7 @@ never clobbers an earlier result.
 from __future__ import annotations
 
 import contextlib
+import functools
 import hashlib
 import json
 import os
@@ -43,6 +44,15 @@ _FULL_HASH_LIMIT = 256 * 1024 * 1024
 _FAST_HASH_BLOCK = 4 * 1024 * 1024
 
 
+def _current_umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _current_umask()
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` if the block succeeds.
@@ -58,6 +68,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     )
     os.close(fd)
     tmp = Path(tmp_name)
+    # mkstemp creates the file owner-only; outputs get the permissions a plain open() would.
+    tmp.chmod(0o666 & ~_UMASK)
     try:
         yield tmp
         tmp.replace(dest)
@@ -99,7 +111,7 @@ def hash_input(path: str | Path) -> dict[str, Any]:
             digest.update(f.relative_to(p).as_posix().encode() + b"\0")
         with f.open("rb") as fh:
             if size <= _FULL_HASH_LIMIT:
-                for block in iter(lambda fh=fh: fh.read(1 << 20), b""):
+                for block in iter(functools.partial(fh.read, 1 << 20), b""):
                     digest.update(block)
             else:
                 fast = True
@@ -173,6 +185,12 @@ class RunDir:
     def file(self, name: str) -> Path:
         """Destination path of an output inside the run folder."""
         return self.path / name
+
+    def output(self, name: str) -> Path:
+        """Destination of an output whose writer is atomic itself; it is listed in run.json."""
+        if name not in self.outputs:
+            self.outputs.append(name)
+        return self.file(name)
 
     @contextlib.contextmanager
     def atomic(self, name: str) -> Iterator[Path]:

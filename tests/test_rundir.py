@@ -88,3 +88,13 @@ def test_hash_of_a_folder_depends_on_names_and_contents(tmp_path: Path) -> None:
     assert first["hash"] != second["hash"]
     with pytest.raises(InputError, match="no such file"):
         hash_input(tmp_path / "missing")
+
+
+def test_outputs_get_ordinary_permissions(tmp_path: Path) -> None:
+    import os
+
+    mask = os.umask(0o022)
+    os.umask(mask)
+    run = RunDir(tmp_path / "run")
+    path = run.write_text("a.txt", "x")
+    assert path.stat().st_mode & 0o777 == 0o666 & ~mask

@@ -45,9 +45,9 @@ def _hat(v: F64) -> F64:
     return out
 
 
-def so3_exp(phi: ArrayLike) -> F64:
+def so3_exp(rotvec: ArrayLike) -> F64:
     """Rotation vectors (…,3) in radians -> rotation matrices (…,3,3) (Rodrigues)."""
-    phi = np.asarray(phi, dtype=np.float64)
+    phi = np.asarray(rotvec, dtype=np.float64)
     theta = np.linalg.norm(phi, axis=-1)[..., None, None]
     k = _hat(phi)
     small = theta < 1e-6
@@ -70,9 +70,9 @@ def so3_log(rotation: ArrayLike) -> F64:
     return quat_wxyz_to_rotvec(matrix_to_quat_wxyz(r))
 
 
-def quat_wxyz_to_rotvec(q: ArrayLike) -> F64:
+def quat_wxyz_to_rotvec(quat: ArrayLike) -> F64:
     """Unit quaternions (…,4) wxyz -> rotation vectors (…,3)."""
-    q = np.asarray(q, dtype=np.float64)
+    q = np.asarray(quat, dtype=np.float64)
     q = np.where(q[..., :1] < 0.0, -q, q)
     w = np.clip(q[..., 0], -1.0, 1.0)
     v = q[..., 1:]
@@ -93,9 +93,9 @@ def _left_jacobian(phi: F64) -> F64:
     return np.eye(3) + b * k + c * (k @ k)
 
 
-def se3_exp(xi: ArrayLike) -> F64:
+def se3_exp(twist: ArrayLike) -> F64:
     """Twists (…,6) ``[rho, phi]`` -> transforms (…,4,4)."""
-    xi = np.asarray(xi, dtype=np.float64)
+    xi = np.asarray(twist, dtype=np.float64)
     rho, phi = xi[..., :3], xi[..., 3:]
     t = np.einsum("...ij,...j->...i", _left_jacobian(phi), rho)
     return make_pose(so3_exp(phi), t)
@@ -109,9 +109,9 @@ def se3_log(pose: ArrayLike) -> F64:
     return np.concatenate([rho, phi], axis=-1)
 
 
-def quat_wxyz_to_matrix(q: ArrayLike) -> F64:
+def quat_wxyz_to_matrix(quat: ArrayLike) -> F64:
     """Quaternions (…,4) wxyz (normalised here) -> rotation matrices (…,3,3)."""
-    q = np.asarray(q, dtype=np.float64)
+    q = np.asarray(quat, dtype=np.float64)
     q = q / np.linalg.norm(q, axis=-1, keepdims=True)
     w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
     out = np.empty((*q.shape[:-1], 3, 3))
@@ -127,9 +127,9 @@ def quat_wxyz_to_matrix(q: ArrayLike) -> F64:
     return out
 
 
-def quat_xyzw_to_matrix(q: ArrayLike) -> F64:
+def quat_xyzw_to_matrix(quat: ArrayLike) -> F64:
     """Quaternions (…,4) xyzw (TUM order) -> rotation matrices (…,3,3)."""
-    q = np.asarray(q, dtype=np.float64)
+    q = np.asarray(quat, dtype=np.float64)
     return quat_wxyz_to_matrix(np.concatenate([q[..., 3:], q[..., :3]], axis=-1))
 
 
@@ -176,14 +176,14 @@ def matrix_to_quat_xyzw(rotation: ArrayLike) -> F64:
     return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
 
 
-def slerp(q0: ArrayLike, q1: ArrayLike, t: ArrayLike) -> F64:
+def slerp(q0: ArrayLike, q1: ArrayLike, fraction: ArrayLike) -> F64:
     """Spherical interpolation of wxyz quaternions (…,4) at fractions t (…) in [0, 1].
 
     Takes the shorter arc; falls back to normalised linear interpolation for nearly equal inputs.
     """
     a = np.asarray(q0, dtype=np.float64)
     b = np.asarray(q1, dtype=np.float64)
-    t = np.asarray(t, dtype=np.float64)[..., None]
+    t = np.asarray(fraction, dtype=np.float64)[..., None]
     dot = np.sum(a * b, axis=-1, keepdims=True)
     b = np.where(dot < 0.0, -b, b)
     dot = np.abs(dot)

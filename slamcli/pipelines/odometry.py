@@ -83,7 +83,7 @@ class RgbdOdometry:
                 o3d.t.geometry.Image(np.ascontiguousarray(frame.rgb)),
                 o3d.t.geometry.Image(np.ascontiguousarray(depth)),
             ),
-            o3d.core.Tensor(frame.camera.K),
+            o3d.core.Tensor.from_numpy(frame.camera.K),
         )
 
     def _track(self, current: Any) -> NDArray[np.float64]:
@@ -105,7 +105,7 @@ class RgbdOdometry:
                 rgbd_cur,
                 rgbd_prev,
                 intrinsics,
-                o3d.core.Tensor(self._velocity),
+                o3d.core.Tensor.from_numpy(self._velocity),
                 1.0,
                 cfg.depth_max_m,
                 [odo.OdometryConvergenceCriteria(n) for n in cfg.iterations],
