@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import logging
 from collections.abc import Mapping
 from dataclasses import asdict, dataclass, field
@@ -58,9 +59,7 @@ def run_pipeline(
         total = info.frames if max_frames is None else min(info.frames, max_frames)
         frames = 0
         with timings.stage("track"):
-            for frame in source.frames(pipeline_cls.consumes):
-                if frames >= total:
-                    break
+            for frame in itertools.islice(source.frames(pipeline_cls.consumes), total):
                 pipe.process(frame)
                 frames += 1
                 if progress:

@@ -75,7 +75,9 @@ class RgbdOdometry:
         )
 
     def _to_open3d(self, frame: RgbdFrame) -> Any:
-        import open3d as o3d
+        from slamcli.backends import import_open3d
+
+        o3d = import_open3d()
 
         depth = np.nan_to_num(frame.depth_m, nan=0.0).astype(np.float32, copy=False)
         return (
@@ -88,7 +90,9 @@ class RgbdOdometry:
 
     def _track(self, current: Any) -> NDArray[np.float64]:
         """Pose of the current camera in the previous camera's frame."""
-        import open3d as o3d
+        from slamcli.backends import import_open3d
+
+        o3d = import_open3d()
 
         odo = o3d.t.pipelines.odometry
         cfg = self.config

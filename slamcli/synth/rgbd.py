@@ -547,7 +547,9 @@ class RgbdWorld:
 
     def _cast(self, world_from_cam: F64, dirs: F32) -> tuple[F32, NDArray[np.int32]]:
         """Hit z-depth (K, H, W) and surface index (K, H, W) of rays from the camera centre."""
-        import open3d as o3d
+        from slamcli.backends import import_open3d
+
+        o3d = import_open3d()
 
         if self._raycaster is None:
             vertices, faces = self.scene.mesh()

@@ -1,0 +1,42 @@
+"""Loading the heavy compiled libraries: late, clearly, and reproducibly."""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from types import ModuleType
+
+from slamcli.errors import SlamcliError
+
+log = logging.getLogger(__name__)
+
+
+def import_open3d() -> ModuleType:
+    """Import Open3D with its kernels on one thread, so results do not depend on thread timing.
+
+    Open3D's parallel reductions (RGB-D odometry, ICP) add partial sums in an order set by
+    thread scheduling, and its iterative solvers grow those last-bit differences into
+    millimetres of trajectory. Its thread pools size themselves from the CPU affinity when the
+    library loads, so the process is pinned to one CPU while Open3D loads and released right
+    after: Open3D's kernels run on one core and everything else keeps every core.
+    """
+    if "open3d" in sys.modules:
+        return sys.modules["open3d"]
+    pinned = None
+    if hasattr(os, "sched_getaffinity"):
+        pinned = os.sched_getaffinity(0)
+        os.sched_setaffinity(0, {min(pinned)})
+    try:
+        import open3d
+    except (ImportError, OSError) as exc:
+        raise SlamcliError(
+            f"Open3D could not be loaded ({exc})",
+            hint="install the open3d-cpu (Linux x86-64) or open3d package; on Debian/Ubuntu it "
+            "also needs: apt-get install libusb-1.0-0 libegl1 libgl1",
+        ) from exc
+    finally:
+        if pinned is not None:
+            os.sched_setaffinity(0, pinned)
+    log.debug("Open3D %s loaded with single-threaded kernels", open3d.__version__)
+    return open3d

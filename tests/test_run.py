@@ -1,0 +1,74 @@
+"""run_pipeline and the demo: real runs scored against ground truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from slamcli.cli.app import app
+from slamcli.demo import default_sample
+from slamcli.formats.trajectory import read_trajectory
+from slamcli.geometry import inverse, rotation_angle
+from slamcli.run import run_pipeline
+
+runner = CliRunner()
+
+
+def test_demo_writes_an_accurate_run(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    res = runner.invoke(app, ["demo", "--out", str(out)])
+    assert res.exit_code == 0, res.output
+    assert {p.name for p in out.iterdir()} == {"trajectory.tum", "report.png", "run.json"}
+    record = json.loads((out / "run.json").read_text())
+    ev = record["metrics"]["evaluation"]
+    assert ev["pairs"] == 30
+    # The sample camera moves about 9 mm and 0.8° per frame; odometry must track it closely.
+    assert ev["ate"]["rmse"] < 0.02
+    assert ev["rpe"]["rot_deg"]["mean"] < 0.3
+    assert record["counts"]["frames_processed"] == 30
+    assert record["counts"]["frames_lost"] == 0
+    assert record["outputs"] == ["trajectory.tum", "report.png", "run.json"]
+    assert (out / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "ATE (m)" in res.stdout
+
+
+def test_demo_is_deterministic_and_refuses_to_clobber(tmp_path: Path) -> None:
+    first, second = tmp_path / "a", tmp_path / "b"
+    assert runner.invoke(app, ["demo", "--out", str(first)]).exit_code == 0
+    assert runner.invoke(app, ["demo", "--out", str(second)]).exit_code == 0
+    a = (first / "trajectory.tum").read_bytes()
+    assert a == (second / "trajectory.tum").read_bytes()
+    res = runner.invoke(app, ["demo", "--out", str(first)])
+    assert res.exit_code == 1
+    assert "not empty" in res.output and "--force" in res.output
+    assert (first / "trajectory.tum").read_bytes() == a
+
+
+def test_demo_names_missing_data(tmp_path: Path) -> None:
+    res = runner.invoke(app, ["demo", "--out", str(tmp_path / "o"), "--data", str(tmp_path / "x")])
+    assert res.exit_code == 1
+    assert "no such file or folder" in res.output or "not found" in res.output
+    assert "Traceback" not in res.output
+    assert not (tmp_path / "o").exists() or not any((tmp_path / "o").iterdir())
+
+
+@pytest.mark.slow
+def test_odometry_tracks_the_real_tum_excerpt(tum_excerpt: Path, tmp_path: Path) -> None:
+    outcome = run_pipeline(tum_excerpt, "odometry", tmp_path / "run", max_frames=40)
+    ev = outcome.metrics["evaluation"]
+    assert ev["pairs"] == 40
+    assert outcome.counts["frames_read"] == 40
+    # freiburg1_rpy turns about 1.4° per frame here; a camera assumed still would err by that.
+    assert ev["rpe"]["rot_deg"]["mean"] < 0.5
+    assert ev["ate"]["rmse"] < 0.03
+    est = read_trajectory(tmp_path / "run" / "trajectory.tum")
+    steps = inverse(est.world_from_body[:-1]) @ est.world_from_body[1:]
+    assert np.degrees(rotation_angle(steps)).mean() > 0.8
+
+
+def test_sample_is_where_the_demo_looks() -> None:
+    assert (default_sample() / "rgb.txt").is_file()
