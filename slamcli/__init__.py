@@ -6,22 +6,22 @@ and read or write trajectories with :mod:`slamcli.formats.trajectory`.
 """
 
 import logging
-
-from slamcli.errors import SlamcliError
-from slamcli.types import (
-    ImageFrame,
-    ImuFrame,
-    LandmarkFrame,
-    OccupancyGrid,
-    OdometryFrame,
-    PinholeCamera,
-    RgbdFrame,
-    SlamResult,
-    Trajectory,
-    TriangleMesh,
-)
+from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
+
+_TYPES = (
+    "ImageFrame",
+    "ImuFrame",
+    "LandmarkFrame",
+    "OccupancyGrid",
+    "OdometryFrame",
+    "PinholeCamera",
+    "RgbdFrame",
+    "SlamResult",
+    "Trajectory",
+    "TriangleMesh",
+)
 
 __all__ = [
     "ImageFrame",
@@ -37,5 +37,34 @@ __all__ = [
     "TriangleMesh",
     "__version__",
 ]
+
+if TYPE_CHECKING:
+    from slamcli.errors import SlamcliError
+    from slamcli.types import (
+        ImageFrame,
+        ImuFrame,
+        LandmarkFrame,
+        OccupancyGrid,
+        OdometryFrame,
+        PinholeCamera,
+        RgbdFrame,
+        SlamResult,
+        Trajectory,
+        TriangleMesh,
+    )
+
+
+def __getattr__(name: str) -> Any:
+    # Re-exports load on first use, so the CLI starts without importing numpy.
+    if name in _TYPES:
+        from slamcli import types
+
+        return getattr(types, name)
+    if name == "SlamcliError":
+        from slamcli.errors import SlamcliError
+
+        return SlamcliError
+    raise AttributeError(f"module 'slamcli' has no attribute {name!r}")
+
 
 logging.getLogger(__name__).addHandler(logging.NullHandler())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import itertools
 import logging
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
 from typing import Any
 
@@ -90,7 +90,11 @@ def run_pipeline(
         "frames_processed": frames,
         **result.counts,
     }
-    cfg = asdict(pipe.config) if hasattr(pipe.config, "__dataclass_fields__") else {}
+    cfg = (
+        asdict(pipe.config)
+        if is_dataclass(pipe.config) and not isinstance(pipe.config, type)
+        else {}
+    )
     run.write_run_json(
         command=command or f"run {pipeline}",
         inputs=[hash_input(input_path)],

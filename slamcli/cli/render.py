@@ -12,14 +12,16 @@ import logging
 import sys
 from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
-from typing import Any, ClassVar
+from typing import TYPE_CHECKING, Any, ClassVar
 
 from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
 from slamcli.errors import SlamcliError
-from slamcli.types import ProgressFn
+
+if TYPE_CHECKING:
+    from slamcli.types import ProgressFn
 
 out = Console(highlight=False, soft_wrap=True)
 err = Console(stderr=True, highlight=False, soft_wrap=True)

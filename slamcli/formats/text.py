@@ -72,3 +72,13 @@ def parse_floats(
             raise FormatError(path, f"column {col}: {what} {f!r} is not finite", line)
         out.append(v)
     return out
+
+
+def format_stamp(stamp_ns: int, decimals: int = 9) -> str:
+    """Exact decimal seconds from int nanoseconds, rounded half up to ``decimals`` (0 to 9)."""
+    ns = int(stamp_ns)
+    unit = 10 ** (9 - decimals)
+    ticks = (abs(ns) + unit // 2) // unit
+    whole, frac = divmod(ticks, 10**decimals)
+    sign = "-" if ns < 0 else ""
+    return f"{sign}{whole}.{frac:0{decimals}d}" if decimals else f"{sign}{whole}"

@@ -34,7 +34,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import FormatError, InputError, UnknownFormatError
-from slamcli.formats.text import iter_data_lines, parse_floats, parse_stamp_ns
+from slamcli.formats.text import format_stamp, iter_data_lines, parse_floats, parse_stamp_ns
 from slamcli.geometry import make_pose, matrix_to_quat_xyzw, quat_wxyz_to_matrix
 from slamcli.rundir import atomic_path
 from slamcli.types import Trajectory
@@ -102,7 +102,7 @@ class PoseTable:
         if duplicates == "error":
             raise FormatError(
                 self.path,
-                f"timestamp {_format_stamp(self.stamps_ns[rep[0]])} s repeats the previous row's",
+                f"timestamp {format_stamp(self.stamps_ns[rep[0]])} s repeats the previous row's",
                 int(self.lines[rep[0]]),
                 hint=f"{rep.size} repeated stamp(s) in total; remove the extra rows",
             )
@@ -345,19 +345,24 @@ def _check_time_order(stamps: NDArray[np.int64], lines: NDArray[np.int64], path:
         i = int(back[0]) + 1
         raise FormatError(
             path,
-            f"time goes backwards: {_format_stamp(int(stamps[i]))} s after "
-            f"{_format_stamp(int(stamps[i - 1]))} s",
+            f"time goes backwards: {format_stamp(int(stamps[i]))} s after "
+            f"{format_stamp(int(stamps[i - 1]))} s",
             int(lines[i]),
             hint="trajectory rows must be sorted by time",
         )
 
 
-def _format_stamp(ns: int) -> str:
-    """Exact decimal seconds with 9 decimals from int nanoseconds."""
-    ns = int(ns)
-    sign = "-" if ns < 0 else ""
-    whole, frac = divmod(abs(ns), _NS_PER_S)
-    return f"{sign}{whole}.{frac:09d}"
+def tum_lines(
+    trajectory: Trajectory | PoseTable, stamp_decimals: int = 9, decimals: int = 9
+) -> list[str]:
+    """``t tx ty tz qx qy qz qw`` text lines (no header), quaternions with w >= 0."""
+    poses = trajectory.world_from_body
+    quats = matrix_to_quat_xyzw(poses[:, :3, :3])
+    numbers = np.concatenate([poses[:, :3, 3], quats], axis=1)
+    return [
+        format_stamp(int(s), stamp_decimals) + " " + " ".join(f"{v:.{decimals}f}" for v in row)
+        for s, row in zip(trajectory.stamps_ns, numbers, strict=True)
+    ]
 
 
 def write_tum(path: str | Path, trajectory: Trajectory | PoseTable) -> Path:
@@ -366,15 +371,7 @@ def write_tum(path: str | Path, trajectory: Trajectory | PoseTable) -> Path:
     Stamps are written exactly from int nanoseconds with 9 decimals; translations and
     quaternions with 9 decimals (1e-9 m, ~2e-9 rad).
     """
-    stamps = trajectory.stamps_ns
-    poses = trajectory.world_from_body
-    quats = matrix_to_quat_xyzw(poses[:, :3, :3])
-    numbers = np.concatenate([poses[:, :3, 3], quats], axis=1)
-    lines = [
-        _format_stamp(int(s)) + " " + " ".join(f"{v:.9f}" for v in row)
-        for s, row in zip(stamps, numbers, strict=True)
-    ]
-    return _write_lines(path, ["# timestamp tx ty tz qx qy qz qw", *lines])
+    return _write_lines(path, ["# timestamp tx ty tz qx qy qz qw", *tum_lines(trajectory)])
 
 
 def write_kitti(
@@ -388,7 +385,7 @@ def write_kitti(
     rows = poses[:, :3, :].reshape(-1, 12)
     _write_lines(path, [" ".join(f"{v:.12e}" for v in row) for row in rows])
     if times is not None:
-        _write_lines(times, [_format_stamp(int(s)) for s in trajectory.stamps_ns])
+        _write_lines(times, [format_stamp(int(s)) for s in trajectory.stamps_ns])
     return Path(path)
 
 

@@ -44,7 +44,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError
-from slamcli.geometry import make_pose, matrix_to_quat_xyzw, so3_exp
+from slamcli.formats.text import format_stamp
+from slamcli.formats.trajectory import tum_lines
+from slamcli.geometry import make_pose, so3_exp
 from slamcli.rundir import RunDir
 from slamcli.types import ProgressFn, Trajectory
 
@@ -301,11 +303,6 @@ def _check(landmarks: int, duration_s: float, sensor: LandmarkSensor) -> None:
         )
 
 
-def _stamp(ns: int) -> str:
-    sec, rest = divmod(int(ns), 1_000_000_000)
-    return f"{sec}.{rest // 1000:06d}"
-
-
 def generate_landmark_world(
     out: str | Path,
     seed: int = 0,
@@ -330,7 +327,7 @@ def generate_landmark_world(
     world = simulate_landmark_world(seed, landmarks, duration_s, sensor)
     run = RunDir(out, force=force)
     total = 5
-    stamps = [_stamp(s) for s in world.stamps_ns]
+    stamps = [format_stamp(s, 6) for s in world.stamps_ns]
 
     def done(i: int) -> None:
         if progress is not None:
@@ -349,13 +346,8 @@ def generate_landmark_world(
     ]
     files.append(run.write_text("measurements.csv", "\n".join(meas) + "\n"))
     done(2)
-    traj = world.trajectory()
-    quats = matrix_to_quat_xyzw(traj.world_from_body[:, :3, :3])
     gt = ["# ground truth: planar robot poses, world_from_body", "# timestamp tx ty tz qx qy qz qw"]
-    gt += [
-        f"{s} {p[0]:.6f} {p[1]:.6f} {p[2]:.6f} {q[0]:.9f} {q[1]:.9f} {q[2]:.9f} {q[3]:.9f}"
-        for s, p, q in zip(stamps, traj.positions, quats, strict=True)
-    ]
+    gt += tum_lines(world.trajectory(), stamp_decimals=6)
     files.append(run.write_text("groundtruth.tum", "\n".join(gt) + "\n"))
     done(3)
     marks = ["id,x,y"] + [f"{i},{x:.6f},{y:.6f}" for i, (x, y) in enumerate(world.landmarks)]

@@ -50,7 +50,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError
-from slamcli.geometry import make_pose, matrix_to_quat_xyzw
+from slamcli.formats.text import format_stamp
+from slamcli.formats.trajectory import tum_lines
+from slamcli.geometry import make_pose
 from slamcli.rundir import RunDir, atomic_path
 from slamcli.types import PinholeCamera, ProgressFn, Trajectory
 
@@ -706,12 +708,6 @@ def _check_options(frames: int, size: tuple[int, int]) -> None:
         )
 
 
-def format_stamp(stamp_ns: int) -> str:
-    """Seconds with exactly six decimals, from whole-microsecond int nanoseconds."""
-    sec, ns = divmod(int(stamp_ns), 1_000_000_000)
-    return f"{sec}.{ns // 1000:06d}"
-
-
 def render_rgbd_sequence(
     out: str | Path,
     frames: int = 300,
@@ -747,8 +743,8 @@ def render_rgbd_sequence(
     depth_dir.mkdir(exist_ok=True)
     noise_rng = np.random.default_rng([seed, _RNG_SENSOR]) if noise else None
     traj = world.trajectory
-    rgb_names = [f"rgb/{format_stamp(s)}.png" for s in traj.stamps_ns]
-    depth_names = [f"depth/{format_stamp(s)}.png" for s in world.depth_stamps_ns]
+    rgb_names = [f"rgb/{format_stamp(s, 6)}.png" for s in traj.stamps_ns]
+    depth_names = [f"depth/{format_stamp(s, 6)}.png" for s in world.depth_stamps_ns]
     holes = 0
     png = [cv2.IMWRITE_PNG_COMPRESSION, 6]
     for i in range(frames):
@@ -803,17 +799,13 @@ def _remove_stale(folder: Path, keep: set[str]) -> None:
 
 def _index(what: str, origin: str, stamps_ns: NDArray[np.int64], names: list[str]) -> str:
     lines = [f"# {what}", f"# file: '{origin}'", "# timestamp filename"]
-    lines += [f"{format_stamp(s)} {n}" for s, n in zip(stamps_ns, names, strict=True)]
+    lines += [f"{format_stamp(s, 6)} {n}" for s, n in zip(stamps_ns, names, strict=True)]
     return "\n".join(lines) + "\n"
 
 
 def _groundtruth_text(origin: str, traj: Trajectory) -> str:
-    quats = matrix_to_quat_xyzw(traj.world_from_body[:, :3, :3])
     lines = ["# ground truth trajectory", f"# file: '{origin}'", "# timestamp tx ty tz qx qy qz qw"]
-    for s, p, q in zip(traj.stamps_ns, traj.positions, quats, strict=True):
-        values = " ".join(f"{v:.7f}" for v in (*p, *q))
-        lines.append(f"{format_stamp(s)} {values}")
-    return "\n".join(lines) + "\n"
+    return "\n".join([*lines, *tum_lines(traj, stamp_decimals=6)]) + "\n"
 
 
 def _accelerometer_text(origin: str, frames: int, seed: int, noise: bool) -> str:
@@ -824,7 +816,7 @@ def _accelerometer_text(origin: str, frames: int, seed: int, noise: bool) -> str
         acc = acc + bias + rng.normal(0.0, _ACCEL_SIGMA, acc.shape)
     lines = ["# accelerometer data", f"# file: '{origin}'", "# timestamp ax ay az"]
     for s, a in zip(colour_stamps_ns(frames), acc, strict=True):
-        lines.append(f"{format_stamp(s)} {a[0]:.6f} {a[1]:.6f} {a[2]:.6f}")
+        lines.append(f"{format_stamp(s, 6)} {a[0]:.6f} {a[1]:.6f} {a[2]:.6f}")
     return "\n".join(lines) + "\n"
 
 
