@@ -712,3 +712,45 @@ def test_command_module_imports_only_light_modules() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == ""
+
+
+@pytest.mark.parametrize(
+    ("name", "rows", "fmt", "needles"),
+    [
+        ("cols.txt", ["1.0 0 0 0 0 0 0 1", "1.1 0 0 0 0 0 1"], "tum", ["cols.txt:2:", "8"]),
+        ("text.txt", ["1.0 0 0 0 0 0 0 1", "1.1 0 0 x 0 0 0 1"], "tum", ["text.txt:2:", "'x'"]),
+        ("nan.txt", ["1.0 0 0 0 0 0 0 1", "1.1 0 nan 0 0 0 0 1"], "tum", ["nan.txt:2:", "finite"]),
+        ("inf.txt", ["1.0 0 0 0 0 0 0 1", "1.1 0 0 0 inf 0 0 1"], "tum", ["inf.txt:2:", "finite"]),
+        (
+            "quat.txt",
+            ["1.0 0 0 0 0 0 0 1", "1.1 0 0 0 0 0 0 2"],
+            "tum",
+            ["quat.txt:2:", "quaternion"],
+        ),
+        (
+            "back.txt",
+            ["1.0 0 0 0 0 0 0 1", "0.9 0 0 0 0 0 0 1"],
+            "tum",
+            ["back.txt:2:", "backwards"],
+        ),
+        ("empty.txt", ["# nothing here"], "tum", ["empty.txt"]),
+        (
+            "rot.kitti",
+            ["1 0 0 0 0 1 0 0 0 0 1 0", "2 0 0 0 0 1 0 0 0 0 1 0"],
+            "kitti",
+            ["rot.kitti:2:", "rotation"],
+        ),
+        (
+            "gt.csv",
+            ["#timestamp,x,y,z,qw,qx,qy,qz", "1000000000,0,0,0,1,0,0,0", "2000000000,0,0,0,1,0"],
+            "euroc",
+            ["gt.csv:3:"],
+        ),
+    ],
+)
+def test_every_malformed_trajectory_is_one_line_exit_1(
+    tmp_path: Path, name: str, rows: list[str], fmt: str, needles: list[str]
+) -> None:
+    bad = _tum(tmp_path / name, rows)
+    res = _run(["eval", str(bad), str(bad), "--format", fmt])
+    _assert_clean_error(res, *needles)

@@ -16,6 +16,7 @@ app = typer.Typer(
     no_args_is_help=True,
     rich_markup_mode="rich",
     pretty_exceptions_enable=False,
+    add_completion=False,
     context_settings={"help_option_names": ["-h", "--help"]},
 )
 
@@ -43,7 +44,7 @@ def _register() -> None:
     # the command functions, so `slamcli --help` starts fast.
     from slamcli.cli import demo, evaluate, info, synth
 
-    for module in (info, evaluate, synth, demo):
+    for module in (demo, info, evaluate, synth):
         module.register(app)
 
 
