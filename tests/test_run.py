@@ -72,3 +72,20 @@ def test_odometry_tracks_the_real_tum_excerpt(tum_excerpt: Path, tmp_path: Path)
 
 def test_sample_is_where_the_demo_looks() -> None:
     assert (default_sample() / "rgb.txt").is_file()
+
+
+def test_demo_on_data_with_a_missing_image_finishes_and_exits_3(tmp_path: Path) -> None:
+    import shutil
+
+    data = tmp_path / "room"
+    shutil.copytree(default_sample(), data)
+    missing = sorted((data / "rgb").iterdir())[3]
+    missing.unlink()
+    out = tmp_path / "run"
+    res = runner.invoke(app, ["demo", "--data", str(data), "--out", str(out)])
+    assert res.exit_code == 3, res.output
+    assert missing.name in res.output
+    assert "1 frame(s) skipped" in res.output
+    record = json.loads((out / "run.json").read_text())
+    assert record["counts"]["frames_skipped"] == 1
+    assert record["metrics"]["evaluation"]["pairs"] == 29

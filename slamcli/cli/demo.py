@@ -9,6 +9,7 @@ import typer
 
 from slamcli.cli import render
 from slamcli.cli.common import boundary
+from slamcli.errors import DataLossError
 
 
 def register(app: typer.Typer) -> None:
@@ -30,7 +31,7 @@ def demo(
 
     Inspects the sample RGB-D sequence, tracks the camera with RGB-D odometry, scores the
     trajectory against ground truth (ATE, RPE) and writes trajectory.tum, report.png and
-    run.json into --out.
+    run.json into --out. Exits with 3 when frames had to be skipped.
 
     Example: [bold]slamcli demo --out runs/demo --force[/]
     """
@@ -62,3 +63,10 @@ def demo(
             right_align=["rmse", "mean", "max"],
         )
     render.written(run.outputs)
+    skipped = run.counts.get("frames_skipped", 0)
+    if skipped:
+        raise DataLossError(
+            f"{outcome.data}: {skipped} frame(s) skipped because an image was missing or "
+            "unreadable; the results above exclude them",
+            hint=f"'slamcli info {outcome.data} --deep' names every unreadable image",
+        )
