@@ -10,19 +10,6 @@ from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
 
-_TYPES = (
-    "ImageFrame",
-    "ImuFrame",
-    "LandmarkFrame",
-    "OccupancyGrid",
-    "OdometryFrame",
-    "PinholeCamera",
-    "RgbdFrame",
-    "SlamResult",
-    "Trajectory",
-    "TriangleMesh",
-)
-
 __all__ = [
     "ImageFrame",
     "ImuFrame",
@@ -56,14 +43,14 @@ if TYPE_CHECKING:
 
 def __getattr__(name: str) -> Any:
     # Re-exports load on first use, so the CLI starts without importing numpy.
-    if name in _TYPES:
-        from slamcli import types
-
-        return getattr(types, name)
     if name == "SlamcliError":
         from slamcli.errors import SlamcliError
 
         return SlamcliError
+    if name in __all__:
+        from slamcli import types
+
+        return getattr(types, name)
     raise AttributeError(f"module 'slamcli' has no attribute {name!r}")
 
 
