@@ -1,0 +1,152 @@
+"""Records passed between the MCAP reader, the message decoders and the adapters.
+
+The reader yields :class:`RawMessage`; a decoder turns its bytes into a message object; an
+adapter turns that object into one of the typed records below (or a core frame such as
+:class:`~slamcli.types.ImuFrame`). Times are int64 nanoseconds; poses are (4, 4) float64
+``parent_from_child`` transforms.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.types import PinholeCamera
+
+
+@dataclass(frozen=True)
+class ChannelInfo:
+    """One channel of a log with its schema."""
+
+    id: int
+    topic: str
+    message_encoding: str
+    schema_name: str
+    schema_encoding: str
+    schema_data: bytes = b""
+    metadata: dict[str, str] = field(default_factory=dict)
+
+
+@dataclass(frozen=True)
+class RawMessage:
+    """One undecoded message. ``data`` is the serialised payload."""
+
+    channel: ChannelInfo
+    log_time_ns: int
+    publish_time_ns: int
+    sequence: int
+    data: bytes
+
+
+@dataclass
+class ChannelStats:
+    """Message count and time span of one channel (from the summary, or counted by a scan)."""
+
+    count: int = 0
+    first_ns: int | None = None
+    last_ns: int | None = None
+
+
+@dataclass
+class LogHealth:
+    """What reading a log found wrong with it; complete once a full pass has been made."""
+
+    summary_present: bool = True
+    truncated: bool = False
+    truncated_at_byte: int | None = None
+    last_good_time_ns: int | None = None
+    crc_checked: bool = False
+    bad_chunks: list[tuple[int, int, int]] = field(default_factory=list)
+    """(start_ns, end_ns, byte offset) of each chunk skipped because its CRC or data was bad."""
+    chunk_overlap: bool = False
+    reordered: int = 0
+    dropped_late: int = 0
+    undecodable_channels: dict[str, str] = field(default_factory=dict)
+    """topic -> reason, for channels nobody asked for that could not be decoded."""
+
+    @property
+    def data_lost(self) -> bool:
+        return self.truncated or bool(self.bad_chunks) or self.dropped_late > 0
+
+    def problems(self) -> list[str]:
+        """Human-readable one-line descriptions, for ``info`` and run reports."""
+        out = []
+        if self.truncated:
+            where = (
+                f" at byte {self.truncated_at_byte}" if self.truncated_at_byte is not None else ""
+            )
+            out.append(
+                f"truncated: the log ends without a footer{where}; messages up to "
+                f"{_sec(self.last_good_time_ns)} were read (try 'mcap recover')"
+            )
+        elif not self.summary_present:
+            out.append("no summary section: statistics were counted by a full scan")
+        for start, end, offset in self.bad_chunks:
+            out.append(
+                f"bad chunk at byte {offset} skipped: messages {_sec(start)}-{_sec(end)} lost"
+            )
+        if self.chunk_overlap:
+            out.append("chunks overlap in time: messages were merged into log-time order")
+        if self.dropped_late:
+            out.append(
+                f"{self.dropped_late} message(s) arrived too late to reorder and were dropped"
+            )
+        for topic, reason in sorted(self.undecodable_channels.items()):
+            out.append(f"channel {topic} cannot be decoded ({reason}); ignored")
+        return out
+
+
+def _sec(ns: int | None) -> str:
+    return "?" if ns is None else f"{ns * 1e-9:.3f} s"
+
+
+@dataclass(frozen=True)
+class ImageRecord:
+    """A decoded image.
+
+    ``kind`` is ``"rgb"`` (array (H, W, 3) uint8 RGB), ``"mono"`` ((H, W) uint8) or
+    ``"depth"`` ((H, W) float32 metres, 0 = no reading).
+    """
+
+    stamp_ns: int
+    frame_id: str
+    kind: str
+    array: NDArray[Any]
+    encoding: str
+
+
+@dataclass(frozen=True)
+class CameraInfoRecord:
+    stamp_ns: int
+    frame_id: str
+    camera: PinholeCamera
+
+
+@dataclass(frozen=True)
+class PoseRecord:
+    """A pose of ``child_frame_id`` (may be empty) in ``frame_id``: (4, 4) parent_from_child."""
+
+    stamp_ns: int
+    frame_id: str
+    child_frame_id: str
+    parent_from_child: NDArray[np.float64]
+    twist: tuple[float, float] | None = None
+    """(forward velocity m/s, yaw rate rad/s) where the message carries a twist (Odometry)."""
+
+
+@dataclass(frozen=True)
+class TransformRecord:
+    """Transforms of one message (tf, tf_static, foxglove.FrameTransform(s))."""
+
+    transforms: tuple[PoseRecord, ...]
+    static: bool
+
+
+@dataclass(frozen=True)
+class TwistRecord:
+    stamp_ns: int
+    v: float
+    omega: float
