@@ -51,9 +51,18 @@ class FormatError(InputError):
 
 
 class TopicNotFoundError(InputError):
-    """A log has no topic (or several) matching what was asked for."""
+    """A log has no topic (or several) matching what was asked for.
+
+    ``candidates`` rows (topic, type, encoding, count, rate) are shown as a table by the CLI.
+    """
 
     exit_code = 2
+
+    def __init__(
+        self, msg: str, hint: str | None = None, candidates: Sequence[Sequence[str]] = ()
+    ) -> None:
+        super().__init__(msg, hint=hint)
+        self.candidates = [list(map(str, row)) for row in candidates]
 
 
 class ConfigError(SlamcliError):

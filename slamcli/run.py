@@ -25,6 +25,7 @@ class RunOutcome:
     metrics: dict[str, Any] = field(default_factory=dict)
     counts: dict[str, Any] = field(default_factory=dict)
     outputs: list[Path] = field(default_factory=list)
+    data_loss: list[str] = field(default_factory=list)
 
 
 def run_pipeline(
@@ -37,13 +38,14 @@ def run_pipeline(
     source_options: Mapping[str, Any] | None = None,
     max_frames: int | None = None,
     command: str = "",
+    mcap: bool = False,
     progress: ProgressFn | None = None,
 ) -> RunOutcome:
     """Run a pipeline over a source and write its run folder.
 
-    Writes ``trajectory.tum``, ``report.png`` (when ground truth exists) and ``run.json``
-    (schema in README.md). ATE and RPE against the source's ground truth go into the metrics
-    with SE(3) alignment.
+    Writes ``trajectory.tum``, ``report.png`` (when ground truth exists), ``result.mcap`` (with
+    ``mcap=True``) and ``run.json`` (schema in README.md). ATE and RPE against the source's
+    ground truth go into the metrics with SE(3) alignment.
     """
     from slamcli.formats import open_source
     from slamcli.pipelines import get_pipeline
@@ -103,10 +105,10 @@ def run_pipeline(
         timings=timings,
         counts=counts,
         metrics=metrics,
-        extra={"source": info.to_dict()},
+        extra={"source": info.to_dict(), "data_loss": stats.data_loss},
     )
     outputs.append(run.file("run.json"))
-    return RunOutcome(run.path, result, metrics, counts, outputs)
+    return RunOutcome(run.path, result, metrics, counts, outputs, list(stats.data_loss))
 
 
 def _evaluate(

@@ -158,9 +158,10 @@ class Timings:
 class RunDir:
     """An output folder for one run.
 
-    ``RunDir(out, force=False)`` creates the folder, or refuses a non-empty one unless
-    ``force``. Files go in with :meth:`write_text`, :meth:`write_json` or :meth:`atomic`,
-    each atomically, and are listed in run.json's ``outputs``.
+    ``RunDir(out, force=False)`` refuses a non-empty folder unless ``force``; the folder is
+    created with the first file written, so a run that fails before writing leaves nothing.
+    Files go in with :meth:`write_text`, :meth:`write_json` or :meth:`atomic`, each
+    atomically, and are listed in run.json's ``outputs``.
     """
 
     def __init__(self, path: str | Path, force: bool = False) -> None:
@@ -174,16 +175,16 @@ class RunDir:
                 f"{self.path}: output folder is not empty",
                 hint="pass --force to overwrite it, or choose another --out",
             )
+        self.outputs: list[str] = []
+
+    def file(self, name: str) -> Path:
+        """Destination path of an output inside the run folder (created when first needed)."""
         try:
             self.path.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise ExportError(
                 f"{self.path}: cannot create the output folder ({exc.strerror})"
             ) from exc
-        self.outputs: list[str] = []
-
-    def file(self, name: str) -> Path:
-        """Destination path of an output inside the run folder."""
         return self.path / name
 
     def output(self, name: str) -> Path:

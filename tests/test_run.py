@@ -89,3 +89,28 @@ def test_demo_on_data_with_a_missing_image_finishes_and_exits_3(tmp_path: Path) 
     record = json.loads((out / "run.json").read_text())
     assert record["counts"]["frames_skipped"] == 1
     assert record["metrics"]["evaluation"]["pairs"] == 29
+
+
+def test_run_odometry_command_writes_the_run_folder(tmp_path: Path) -> None:
+    out = tmp_path / "odo"
+    res = runner.invoke(
+        app, ["run", "odometry", str(default_sample()), "--out", str(out), "--max-frames", "10"]
+    )
+    assert res.exit_code == 0, res.output
+    record = json.loads((out / "run.json").read_text())
+    assert record["command"] == "run odometry"
+    assert record["counts"]["frames_processed"] == 10
+    assert record["metrics"]["evaluation"]["pairs"] == 10
+    assert record["data_loss"] == []
+
+
+def test_an_option_the_format_does_not_take_is_refused_before_anything_is_written(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "odo"
+    res = runner.invoke(
+        app, ["run", "odometry", str(default_sample()), "--out", str(out), "--rgb-topic", "/c"]
+    )
+    assert res.exit_code == 1
+    assert "--rgb-topic does not apply to tum inputs" in res.output
+    assert not out.exists()

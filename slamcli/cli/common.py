@@ -4,12 +4,16 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any, TypeVar
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import typer
 
 from slamcli.cli import render
-from slamcli.errors import SlamcliError
+from slamcli.errors import DataLossError, SlamcliError, TopicNotFoundError
+
+if TYPE_CHECKING:
+    from slamcli.run import RunOutcome
 
 F = TypeVar("F", bound=Callable[..., Any])
 
@@ -23,6 +27,17 @@ def boundary(fn: F) -> F:
     def wrapper(*args: Any, **kwargs: Any) -> Any:
         try:
             return fn(*args, **kwargs)
+        except TopicNotFoundError as exc:
+            render.error(exc)
+            if exc.candidates:
+                render.table(
+                    "Candidates",
+                    ["topic", "type", "encoding", "count", "rate Hz"],
+                    exc.candidates,
+                    right_align=["count", "rate Hz"],
+                    stderr=True,
+                )
+            raise typer.Exit(exc.exit_code) from None
         except SlamcliError as exc:
             render.error(exc)
             raise typer.Exit(exc.exit_code) from None
@@ -31,3 +46,19 @@ def boundary(fn: F) -> F:
             raise typer.Exit(130) from None
 
     return wrapper  # type: ignore[return-value]
+
+
+def exit_if_data_lost(outcome: RunOutcome, input: Path) -> None:
+    """Exit code 3 when a run finished but skipped frames or salvaged a damaged log."""
+    skipped = outcome.counts.get("frames_skipped", 0)
+    if skipped:
+        raise DataLossError(
+            f"{input}: {skipped} frame(s) skipped because an image was missing or unreadable; "
+            "the results above exclude them",
+            hint=f"'slamcli info {input} --deep' names every unreadable image",
+        )
+    if outcome.data_loss:
+        raise DataLossError(
+            f"{input}: the log is damaged; the run used what could be read",
+            hint="--strict stops instead; 'mcap recover' can rebuild a damaged MCAP file",
+        )

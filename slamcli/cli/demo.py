@@ -8,8 +8,7 @@ from typing import Annotated
 import typer
 
 from slamcli.cli import render
-from slamcli.cli.common import boundary
-from slamcli.errors import DataLossError
+from slamcli.cli.common import boundary, exit_if_data_lost
 
 
 def register(app: typer.Typer) -> None:
@@ -50,23 +49,5 @@ def demo(
             "camera": info.camera_source,
         },
     )
-    ev = run.metrics.get("evaluation")
-    if ev:
-        stats = [("ATE (m)", ev["ate"])]
-        if "rpe" in ev:
-            stats.append(("RPE translation (m/frame)", ev["rpe"]["trans"]))
-            stats.append(("RPE rotation (deg/frame)", ev["rpe"]["rot_deg"]))
-        render.table(
-            f"Accuracy against ground truth ({ev['pairs']} poses, {ev['alignment']} alignment)",
-            ["metric", "rmse", "mean", "max"],
-            [[name, *(f"{s[k]:.4f}" for k in ("rmse", "mean", "max"))] for name, s in stats],
-            right_align=["rmse", "mean", "max"],
-        )
-    render.written(run.outputs)
-    skipped = run.counts.get("frames_skipped", 0)
-    if skipped:
-        raise DataLossError(
-            f"{outcome.data}: {skipped} frame(s) skipped because an image was missing or "
-            "unreadable; the results above exclude them",
-            hint=f"'slamcli info {outcome.data} --deep' names every unreadable image",
-        )
+    render.run_summary(run)
+    exit_if_data_lost(run, outcome.data)

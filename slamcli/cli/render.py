@@ -21,6 +21,7 @@ from rich.table import Table
 from slamcli.errors import SlamcliError
 
 if TYPE_CHECKING:
+    from slamcli.run import RunOutcome
     from slamcli.types import ProgressFn
 
 out = Console(highlight=False, soft_wrap=True)
@@ -73,13 +74,14 @@ def table(
     columns: Sequence[str],
     rows: Sequence[Sequence[Any]],
     right_align: Sequence[str] = (),
+    stderr: bool = False,
 ) -> None:
     t = Table(title=title, title_justify="left", show_edge=False, header_style="bold")
     for c in columns:
         t.add_column(c, justify="right" if c in right_align else "left")
     for r in rows:
         t.add_row(*(escape(str(v)) for v in r))
-    out.print(t)
+    (err if stderr else out).print(t)
 
 
 def key_values(title: str | None, items: Mapping[str, Any]) -> None:
@@ -124,3 +126,22 @@ def progress(description: str, total: int | None = None) -> Iterator[ProgressFn]
             bar.update(task, completed=done, total=total_now if total_now is not None else total)
 
         yield update
+
+
+def run_summary(outcome: RunOutcome) -> None:
+    """Accuracy table (when the run was scored) and the files a run wrote."""
+    ev = outcome.metrics.get("evaluation")
+    if ev:
+        stats = [("ATE (m)", ev["ate"])]
+        if "rpe" in ev:
+            stats.append(("RPE translation (m/frame)", ev["rpe"]["trans"]))
+            stats.append(("RPE rotation (deg/frame)", ev["rpe"]["rot_deg"]))
+        table(
+            f"Accuracy against ground truth ({ev['pairs']} poses, {ev['alignment']} alignment)",
+            ["metric", "rmse", "mean", "max"],
+            [[name, *(f"{s[k]:.4f}" for k in ("rmse", "mean", "max"))] for name, s in stats],
+            right_align=["rmse", "mean", "max"],
+        )
+    written(outcome.outputs)
+    for problem in outcome.data_loss:
+        warn(problem)

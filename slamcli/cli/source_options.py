@@ -98,6 +98,40 @@ Strict = Annotated[
 ]
 
 
+TOPICS = "MCAP topics"
+
+
+def _topic(flag: str, what: str) -> Any:
+    return typer.Option(
+        flag,
+        help=f"{what} (MCAP logs). Default: the one topic of the right type; with none or "
+        "several, the command lists the candidates.",
+        show_default=False,
+        rich_help_panel=TOPICS,
+    )
+
+
+RgbTopic = Annotated[str | None, _topic("--rgb-topic", "Colour image topic")]
+DepthTopic = Annotated[str | None, _topic("--depth-topic", "Depth image topic")]
+CameraInfoTopic = Annotated[
+    str | None, _topic("--camera-info-topic", "CameraInfo or CameraCalibration topic")
+]
+OdomTopic = Annotated[str | None, _topic("--odom-topic", "Odometry or Twist topic")]
+GtTopic = Annotated[
+    str | None, _topic("--gt-topic", "Ground-truth pose topic (PoseStamped, Odometry, ...)")
+]
+GtFrame = Annotated[
+    str | None,
+    typer.Option(
+        "--gt-frame",
+        help="Take ground truth from tf: the pose of this frame in the root of its tf tree "
+        "(MCAP logs).",
+        show_default=False,
+        rich_help_panel=TOPICS,
+    ),
+]
+
+
 @dataclass(frozen=True)
 class SourceOptions:
     """The shared source options, as given on the command line (None = not given)."""
@@ -112,6 +146,12 @@ class SourceOptions:
     cy: float | None = None
     undistort: bool = False
     strict: bool = False
+    rgb_topic: str | None = None
+    depth_topic: str | None = None
+    camera_info_topic: str | None = None
+    odom_topic: str | None = None
+    gt_topic: str | None = None
+    gt_frame: str | None = None
 
     def open_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for :func:`slamcli.formats.open_source`.

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from slamcli.errors import InputError, UnknownFormatError
+from slamcli.errors import ConfigError, InputError, UnknownFormatError
 from slamcli.formats.base import Frame, ReadStats, Source, SourceInfo, StreamInfo
 from slamcli.formats.tum_rgbd import TumRgbdSource
 
@@ -25,11 +25,23 @@ def open_source(path: str | Path, format: str = "auto", **options: Any) -> Sourc
     if format != "auto":
         if format not in SOURCES:
             raise UnknownFormatError(p, sorted(SOURCES), f"unknown format {format!r}")
-        return SOURCES[format].open(p, **options)
+        return _open(SOURCES[format], p, options)
     for cls in SOURCES.values():
         if cls.sniff(p):
-            return cls.open(p, **options)
+            return _open(cls, p, options)
     raise UnknownFormatError(p, sorted(SOURCES), "a TUM RGB-D folder has rgb.txt and depth.txt")
+
+
+def _open(cls: Any, path: Path, options: dict[str, Any]) -> Source:
+    unknown = sorted(set(options) - set(cls.OPTIONS))
+    if unknown:
+        flags = ", ".join("--" + name.replace("_", "-") for name in unknown)
+        raise ConfigError(
+            f"{path}: {flags} does not apply to {cls.format_name} inputs",
+            hint=f"{cls.format_name} inputs take: "
+            + ", ".join("--" + n.replace("_", "-") for n in cls.OPTIONS),
+        )
+    return cls.open(path, **options)
 
 
 __all__ = ["SOURCES", "Frame", "ReadStats", "Source", "SourceInfo", "StreamInfo", "open_source"]

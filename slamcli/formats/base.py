@@ -58,11 +58,16 @@ class SourceInfo:
 
 @dataclass
 class ReadStats:
-    """What reading frames cost: frames yielded, skipped (with the names), lost."""
+    """What reading frames cost: frames yielded, skipped (with the names), data lost.
+
+    ``data_loss`` holds one line per damage the reader worked around (a truncated log, a bad
+    chunk, messages dropped as too late); a run that has any finishes with exit code 3.
+    """
 
     read: int = 0
     skipped: int = 0
     skipped_names: list[str] = field(default_factory=list)
+    data_loss: list[str] = field(default_factory=list)
 
 
 class Source(Protocol):

@@ -193,6 +193,18 @@ class TumRgbdSource:
     """
 
     format_name = "tum"
+    OPTIONS = (
+        "max_dt",
+        "dt_offset",
+        "depth_factor",
+        "camera",
+        "fx",
+        "fy",
+        "cx",
+        "cy",
+        "undistort",
+        "strict",
+    )
 
     def __init__(
         self,

@@ -739,8 +739,8 @@ def render_rgbd_sequence(
     world = build_rgbd_world(frames, size, seed)
     run = RunDir(out, force=force)
     rgb_dir, depth_dir = run.path / "rgb", run.path / "depth"
-    rgb_dir.mkdir(exist_ok=True)
-    depth_dir.mkdir(exist_ok=True)
+    rgb_dir.mkdir(parents=True, exist_ok=True)
+    depth_dir.mkdir(parents=True, exist_ok=True)
     noise_rng = np.random.default_rng([seed, _RNG_SENSOR]) if noise else None
     traj = world.trajectory
     rgb_names = [f"rgb/{format_stamp(s, 6)}.png" for s in traj.stamps_ns]
