@@ -71,6 +71,24 @@ class LogHealth:
     def data_lost(self) -> bool:
         return self.truncated or bool(self.bad_chunks) or self.dropped_late > 0
 
+    def loss_problems(self) -> list[str]:
+        """The problems that lost data (truncation, bad chunks, late messages)."""
+        out = []
+        if self.truncated:
+            at = self.truncated_at_byte
+            where = f" at byte {at}" if at is not None else ""
+            out.append(
+                f"truncated: the log ends without a footer{where}; messages up to "
+                f"{_sec(self.last_good_time_ns)} were read (try 'mcap recover')"
+            )
+        for start, end, offset in self.bad_chunks:
+            out.append(
+                f"bad chunk at byte {offset} skipped: messages {_sec(start)}-{_sec(end)} lost"
+            )
+        if self.dropped_late:
+            out.append(f"{self.dropped_late} message(s) came too late to reorder and were dropped")
+        return out
+
     def problems(self) -> list[str]:
         """Human-readable one-line descriptions, for ``info`` and run reports."""
         out = []
