@@ -44,6 +44,8 @@ def test_every_command_help_imports_no_heavy_library() -> None:
         ["eval", "--help"],
         ["synth", "rgbd", "--help"],
         ["demo", "--help"],
+        ["run", "odometry", "--help"],
+        ["convert", "--help"],
     ):
         assert _modules_loaded_by(cmd) == set(), cmd
 

@@ -42,9 +42,9 @@ def _root(
 def _register() -> None:
     # Command modules import only light things at import time; heavy libraries load inside
     # the command functions, so `slamcli --help` starts fast.
-    from slamcli.cli import demo, evaluate, info, run, synth
+    from slamcli.cli import convert, demo, evaluate, info, run, synth
 
-    for module in (demo, run, info, evaluate, synth):
+    for module in (demo, run, info, evaluate, synth, convert):
         module.register(app)
 
 

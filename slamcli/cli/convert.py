@@ -1,0 +1,253 @@
+"""``slamcli convert``: an RGB-D folder to an MCAP log, or a run folder to ``result.mcap``."""
+
+from __future__ import annotations
+
+from enum import Enum
+from pathlib import Path
+from typing import TYPE_CHECKING, Annotated
+
+import typer
+
+from slamcli.cli import render
+from slamcli.cli.common import boundary
+from slamcli.cli.source_options import (
+    DEFAULTS,
+    CameraOpt,
+    Cx,
+    Cy,
+    DepthFactor,
+    DtOffset,
+    Fx,
+    Fy,
+    GtFrame,
+    GtTopic,
+    MaxDt,
+    SourceOptions,
+    Strict,
+    Undistort,
+)
+from slamcli.errors import ConfigError, DataLossError
+
+if TYPE_CHECKING:
+    from slamcli.formats.mcap.write import McapWriteSummary
+
+HELP = """Convert a TUM RGB-D folder to an MCAP log, a run folder to a Foxglove result log, or \
+a pose topic of an MCAP log to a trajectory file.
+
+[bold]RGB-D folder[/] -> MCAP: colour, depth, camera info, ground truth and (ros2 only) the \
+accelerometer on /camera/color/image_raw, /camera/depth/image_raw, /camera/color/camera_info, \
+/groundtruth and /imu. --flavor ros2 writes sensor_msgs and geometry_msgs messages as CDR with \
+full ros2msg schemas, as `ros2 bag record` does; --flavor foxglove writes foxglove.RawImage, \
+CompressedImage, CameraCalibration, PoseInFrame and FrameTransform (/tf) as JSON with the \
+official Foxglove JSON schemas. Depth 16UC1 is millimetres (rounded: TUM's 0.2 mm steps are \
+lost); 32FC1 is metres, exactly the source's values. --compress-images jpeg|png compresses \
+colour, and in the ros2 flavour 16UC1 depth as lossless "16UC1; compressedDepth png".
+
+[bold]Run folder[/] (it has run.json) -> a log Foxglove opens: the trajectory \
+(foxglove.PoseInFrame on /slamcli/pose, world->camera on /tf), map.yaml as foxglove.Grid, \
+points.ply as foxglove.PointCloud and mesh.ply as a GLB model in a foxglove.SceneUpdate.
+
+[bold]MCAP log[/] -> OUT.tum / OUT.txt (TUM) or OUT.kitti: the poses of --gt-topic (PoseStamped, \
+PoseWithCovarianceStamped, Odometry, foxglove.PoseInFrame) at their header stamps, or of \
+--gt-frame from tf (the frame's pose in the root of its tree).
+
+OUT is written to a temporary name and renamed into place when complete.
+
+Exit codes: 0 ok; 1 bad input or options, or OUT exists without --force; 2 usage; 3 written, \
+but some images were missing or unreadable and their frames were skipped.
+
+Examples:
+
+[bold]slamcli convert data/rgbd_dataset_freiburg1_xyz xyz.mcap --flavor ros2[/]
+
+[bold]slamcli convert data/room room.mcap --flavor foxglove --compress-images jpeg[/]
+
+[bold]slamcli convert runs/demo runs/demo/result.mcap[/]
+
+[bold]slamcli convert robot.mcap odom.tum --gt-topic /odom[/]
+"""
+
+
+class Flavor(str, Enum):
+    ros2 = "ros2"
+    foxglove = "foxglove"
+
+
+class Compression(str, Enum):
+    none = "none"
+    jpeg = "jpeg"
+    png = "png"
+
+
+class DepthEncoding(str, Enum):
+    millimetres = "16UC1"
+    metres = "32FC1"
+
+
+def register(app: typer.Typer) -> None:
+    app.command("convert", help=HELP, rich_help_panel="Export")(convert)
+
+
+@boundary
+def convert(
+    input: Annotated[
+        Path,
+        typer.Argument(
+            help="A TUM RGB-D folder, a run folder, or an MCAP log.", show_default=False
+        ),
+    ],
+    out: Annotated[
+        Path,
+        typer.Argument(
+            help="The .mcap file to write (or a .tum/.txt/.kitti trajectory for an MCAP log).",
+            show_default=False,
+        ),
+    ],
+    flavor: Annotated[
+        Flavor | None,
+        typer.Option(
+            "--flavor",
+            help="Message types for an RGB-D input: ros2 (CDR) or foxglove (JSON). "
+            "Default: ros2; run folders are always written with Foxglove schemas.",
+            show_default=False,
+        ),
+    ] = None,
+    compress_images: Annotated[
+        Compression,
+        typer.Option("--compress-images", help="Compress colour images (and ros2 16UC1 depth)."),
+    ] = Compression.none,
+    depth_encoding: Annotated[
+        DepthEncoding,
+        typer.Option(
+            "--depth-encoding", help="Depth as 16UC1 millimetres or 32FC1 metres (exact)."
+        ),
+    ] = DepthEncoding.millimetres,
+    jpeg_quality: Annotated[
+        int, typer.Option("--jpeg-quality", min=1, max=100, help="JPEG quality (1-100).")
+    ] = 90,
+    max_frames: Annotated[
+        int | None,
+        typer.Option(
+            "--max-frames",
+            min=1,
+            help="Convert only the first N RGB-D frames (and the data up to the last one).",
+            show_default=False,
+        ),
+    ] = None,
+    force: Annotated[bool, typer.Option("--force", help="Overwrite OUT if it exists.")] = False,
+    max_dt: MaxDt = DEFAULTS.max_dt,
+    dt_offset: DtOffset = DEFAULTS.dt_offset,
+    depth_factor: DepthFactor = None,
+    camera: CameraOpt = None,
+    fx: Fx = None,
+    fy: Fy = None,
+    cx: Cx = None,
+    cy: Cy = None,
+    undistort: Undistort = False,
+    strict: Strict = False,
+    gt_topic: GtTopic = None,
+    gt_frame: GtFrame = None,
+) -> None:
+    from slamcli.formats.mcap.write import is_run_dir
+
+    if out.suffix.lower() in TRAJECTORY_SUFFIXES:
+        _export_trajectory(input, out, gt_topic, gt_frame, strict, force)
+        return
+    if gt_topic or gt_frame:
+        raise ConfigError(
+            "--gt-topic/--gt-frame export a trajectory: give OUT a .tum, .txt or .kitti name"
+        )
+
+    if is_run_dir(input):
+        from slamcli.formats.mcap.write import read_run_result, write_result_log
+
+        rgbd_only = {
+            "--flavor ros2": flavor is Flavor.ros2,
+            "--compress-images": compress_images is not Compression.none,
+            "--depth-encoding": depth_encoding is not DepthEncoding.millimetres,
+            "--max-frames": max_frames is not None,
+        }
+        given = [flag for flag, used in rgbd_only.items() if used]
+        if given:
+            raise ConfigError(
+                f"{input}: {', '.join(given)} {'is' if len(given) == 1 else 'are'} for RGB-D "
+                "inputs, not run folders",
+                hint="a run folder is always written with Foxglove schemas; drop those options",
+            )
+        summary = write_result_log(out, read_run_result(input), force=force)
+        _show(summary)
+        return
+
+    from slamcli.formats import open_source
+    from slamcli.formats.mcap.write import write_source_mcap
+
+    opts = SourceOptions(
+        max_dt=max_dt,
+        dt_offset=dt_offset,
+        depth_factor=depth_factor,
+        camera=camera,
+        fx=fx,
+        fy=fy,
+        cx=cx,
+        cy=cy,
+        undistort=undistort,
+        strict=strict,
+    )
+    with (
+        open_source(input, **opts.open_kwargs()) as source,
+        render.progress("converting frames") as progress,
+    ):
+        summary = write_source_mcap(
+            source,
+            out,
+            flavor=(flavor or Flavor.ros2).value,
+            compress_images=compress_images.value,
+            depth_encoding=depth_encoding.value,
+            jpeg_quality=jpeg_quality,
+            max_frames=max_frames,
+            force=force,
+            progress=progress,
+        )
+    _show(summary)
+    if summary.skipped:
+        raise DataLossError(
+            f"{input}: {summary.skipped} frame(s) skipped because an image was missing or "
+            f"unreadable; {out} holds the other {summary.frames}",
+            hint=f"'slamcli info {input} --deep' names every unreadable image",
+        )
+
+
+TRAJECTORY_SUFFIXES = {".tum": "tum", ".txt": "tum", ".kitti": "kitti"}
+
+
+def _export_trajectory(
+    input: Path, out: Path, gt_topic: str | None, gt_frame: str | None, strict: bool, force: bool
+) -> None:
+    from slamcli.formats.mcap.source import McapSource
+    from slamcli.formats.trajectory import write_trajectory
+
+    if not McapSource.sniff(input):
+        raise ConfigError(f"{input}: trajectories are exported from MCAP logs only")
+    if out.exists() and not force:
+        raise ConfigError(f"{out}: exists", hint="pass --force to overwrite it")
+    if not (gt_topic or gt_frame):
+        raise ConfigError(
+            f"{out}: exporting a trajectory needs --gt-topic TOPIC or --gt-frame FRAME",
+            hint=f"'slamcli info {input}' lists the topics",
+        )
+    with McapSource(input, gt_topic=gt_topic, gt_frame=gt_frame, strict=strict) as source:
+        trajectory = source.groundtruth()
+        lost = list(source.stats.data_loss)
+    if trajectory is None:
+        raise ConfigError(f"{input}: {gt_topic or gt_frame} holds no poses")
+    write_trajectory(out, trajectory, TRAJECTORY_SUFFIXES[out.suffix.lower()])
+    render.key_values(None, {"poses": len(trajectory), "from": gt_topic or f"tf {gt_frame}"})
+    render.written([out])
+    if lost:
+        raise DataLossError(f"{input}: the log is damaged; {out} holds what could be read")
+
+
+def _show(summary: McapWriteSummary) -> None:
+    rows = [[topic, schema, count] for topic, (schema, count) in summary.topics.items()]
+    render.table(str(summary.path), ["topic", "type", "messages"], rows, right_align=["messages"])
+    render.written([summary.path])
