@@ -57,17 +57,21 @@ def run_pipeline(
     with open_source(input_path, **dict(source_options or {})) as source:
         with timings.stage("open"):
             info = source.info()
-            groundtruth = source.groundtruth()
+        # info's count is an estimate for some formats (MCAP pairs by log time there): it sizes
+        # the progress bar but never limits the run.
         total = info.frames if max_frames is None else min(info.frames, max_frames)
         frames = 0
         with timings.stage("track"):
-            for frame in itertools.islice(source.frames(pipeline_cls.consumes), total):
+            for frame in itertools.islice(source.frames(pipeline_cls.consumes), max_frames):
                 pipe.process(frame)
                 frames += 1
                 if progress:
-                    progress(frames, total)
+                    progress(frames, max(total, frames))
         with timings.stage("finish"):
             result = pipe.finish()
+        # After the frames: a source may give ground truth at the times of the frames it read.
+        with timings.stage("groundtruth"):
+            groundtruth = source.groundtruth()
         stats = source.stats
     if result.trajectory is None or len(result.trajectory) == 0:
         raise PipelineError(f"{input_path}: the {pipeline} pipeline produced no poses")
@@ -92,6 +96,13 @@ def run_pipeline(
         "frames_processed": frames,
         **result.counts,
     }
+    if mcap:
+        from slamcli.formats.mcap.write import write_result_log
+
+        with timings.stage("export"):
+            dest = run.output("result.mcap")
+            outputs.append(write_result_log(dest, result, force=True).path)
+
     cfg = (
         asdict(pipe.config)
         if is_dataclass(pipe.config) and not isinstance(pipe.config, type)

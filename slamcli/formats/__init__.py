@@ -7,9 +7,10 @@ from typing import Any
 
 from slamcli.errors import ConfigError, InputError, UnknownFormatError
 from slamcli.formats.base import Frame, ReadStats, Source, SourceInfo, StreamInfo
+from slamcli.formats.mcap.source import McapSource
 from slamcli.formats.tum_rgbd import TumRgbdSource
 
-SOURCES: dict[str, Any] = {"tum": TumRgbdSource}
+SOURCES: dict[str, Any] = {"tum": TumRgbdSource, "mcap": McapSource}
 """Source classes by format name; each has ``sniff(path) -> bool`` and ``open(path, **options)``."""
 
 

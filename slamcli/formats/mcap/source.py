@@ -1,0 +1,708 @@
+"""MCAP logs as a :class:`~slamcli.formats.base.Source`: topic selection, sync, ground truth.
+
+Topics are chosen per role (colour, depth, camera, odometry, ground truth, IMU): a flag names
+one, otherwise the one topic of the right type is taken; with none or several the source stops
+with :class:`~slamcli.errors.TopicNotFoundError` listing the candidates. Colour and depth are
+told apart by the encoding of their first message (16UC1/32FC1/compressedDepth = depth).
+
+The camera comes from, in this order: ``--camera-info-topic``; the ``camera_info`` topic beside
+the colour topic (``/cam/color/image_raw`` -> ``/cam/color/camera_info``); a calibration topic
+whose frame id matches the colour images'; ``--camera``/``--fx ...`` (or a camera file next to
+the log); the only calibration topic of the log.
+
+Colour and depth are paired with the TUM ``associate.py`` rule (greedy by smallest |Δt| below
+``max_dt``) while streaming: images are held until no later message can change their pairing
+(a gap of at least ``max_dt`` in the merged stamps behind both streams' newest stamps), so
+memory stays bounded by a handful of frames.
+
+Ground truth comes from a pose topic (``--gt-topic``) or from tf (``--gt-frame``: the pose of
+that frame in the root of its tree); after frames have been read it is interpolated (SLERP) to
+the colour stamps.
+"""
+
+from __future__ import annotations
+
+import bisect
+import itertools
+import logging
+from collections.abc import Callable, Collection, Iterator
+from pathlib import Path
+from types import TracebackType
+from typing import Any
+
+import numpy as np
+
+from slamcli.errors import ConfigError, InputError, TopicNotFoundError
+from slamcli.formats.base import Frame, ReadStats, SourceInfo, StreamInfo
+from slamcli.formats.mcap.adapters import Adapter, adapter_for, normalize_schema_name
+from slamcli.formats.mcap.decode import DecodeError, decoder_for
+from slamcli.formats.mcap.reader import McapLog
+from slamcli.formats.mcap.records import (
+    CameraInfoRecord,
+    ChannelInfo,
+    ImageRecord,
+    PoseRecord,
+    TransformRecord,
+    TwistRecord,
+)
+from slamcli.formats.mcap.tf import TfBuffer
+from slamcli.formats.tum_rgbd import associate_stamps
+from slamcli.geometry import interpolate_poses
+from slamcli.types import (
+    ImageFrame,
+    ImuFrame,
+    OdometryFrame,
+    PinholeCamera,
+    ProgressFn,
+    RgbdFrame,
+    Trajectory,
+)
+
+log = logging.getLogger(__name__)
+
+MAGIC = b"\x89MCAP0\r\n"
+
+IMAGE_SCHEMAS = frozenset(
+    {
+        "sensor_msgs/msg/Image",
+        "sensor_msgs/msg/CompressedImage",
+        "foxglove.RawImage",
+        "foxglove.CompressedImage",
+    }
+)
+CAMERA_SCHEMAS = frozenset({"sensor_msgs/msg/CameraInfo", "foxglove.CameraCalibration"})
+POSE_SCHEMAS = frozenset(
+    {
+        "geometry_msgs/msg/PoseStamped",
+        "geometry_msgs/msg/PoseWithCovarianceStamped",
+        "nav_msgs/msg/Odometry",
+        "foxglove.PoseInFrame",
+    }
+)
+ODOM_SCHEMAS = frozenset(
+    {"nav_msgs/msg/Odometry", "geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped"}
+)
+TF_SCHEMAS = frozenset(
+    {"tf2_msgs/msg/TFMessage", "foxglove.FrameTransform", "foxglove.FrameTransforms"}
+)
+IMU_SCHEMAS = frozenset({"sensor_msgs/msg/Imu"})
+
+_FORCE_FLUSH = 32
+"""Buffered images at which pairing is settled even without a safe gap (very dense streams)."""
+
+
+class McapSource:
+    """An MCAP log as a :class:`~slamcli.formats.base.Source`.
+
+    Args:
+        path: the ``.mcap`` file.
+        rgb_topic, depth_topic, camera_info_topic, odom_topic, gt_topic: topic choices;
+            None picks the one topic of the right type when it is needed.
+        gt_frame: take ground truth from tf as the pose of this frame in its tree's root.
+        max_dt, dt_offset: colour/depth pairing tolerance and depth stamp offset, seconds.
+        camera, fx, fy, cx, cy: camera when the log has no calibration topic (see
+            :func:`~slamcli.formats.camera.resolve_camera`).
+        strict: a truncated log, a bad chunk or an undecodable message is an error instead
+            of being read around.
+    """
+
+    format_name = "mcap"
+    OPTIONS = (
+        "max_dt",
+        "dt_offset",
+        "camera",
+        "fx",
+        "fy",
+        "cx",
+        "cy",
+        "strict",
+        "rgb_topic",
+        "depth_topic",
+        "camera_info_topic",
+        "odom_topic",
+        "gt_topic",
+        "gt_frame",
+    )
+
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        max_dt: float = 0.02,
+        dt_offset: float = 0.0,
+        camera: str | Path | PinholeCamera | None = None,
+        fx: float | None = None,
+        fy: float | None = None,
+        cx: float | None = None,
+        cy: float | None = None,
+        strict: bool = False,
+        rgb_topic: str | None = None,
+        depth_topic: str | None = None,
+        camera_info_topic: str | None = None,
+        odom_topic: str | None = None,
+        gt_topic: str | None = None,
+        gt_frame: str | None = None,
+    ) -> None:
+        if not np.isfinite(max_dt) or max_dt <= 0:
+            raise ConfigError(f"max_dt must be a positive number of seconds, got {max_dt}")
+        if not np.isfinite(dt_offset):
+            raise ConfigError(f"dt_offset must be a finite number of seconds, got {dt_offset}")
+        if gt_topic and gt_frame:
+            raise ConfigError("give --gt-topic or --gt-frame, not both")
+        self.path = Path(path)
+        self.strict = strict
+        self.max_dt_ns = round(max_dt * 1e9)
+        self.dt_offset_ns = round(dt_offset * 1e9)
+        self._camera_options = (camera, fx, fy, cx, cy)
+        self._want = {
+            "rgb": rgb_topic,
+            "depth": depth_topic,
+            "camera": camera_info_topic,
+            "odometry": odom_topic,
+            "groundtruth": gt_topic,
+        }
+        self.gt_frame = gt_frame
+        self.stats = ReadStats()
+        self.log = McapLog(self.path, strict=strict)
+        self._channels = {c.topic: c for c in self.log.channels().values()}
+        self._schema = {t: normalize_schema_name(c.schema_name) for t, c in self._channels.items()}
+        self._probes: dict[str, ImageRecord | None] = {}
+        self._chosen: dict[str, str | None] = {}
+        self._camera: tuple[PinholeCamera, str] | None = None
+        self._frame_stamps: list[int] = []
+        self._decoders: dict[str, tuple[Callable[[bytes], Any], Adapter]] = {}
+
+    @classmethod
+    def sniff(cls, path: str | Path) -> bool:
+        """A ``.mcap`` file, or any file starting with the MCAP magic."""
+        p = Path(path)
+        if not p.is_file():
+            return False
+        if p.suffix.lower() == ".mcap":
+            return True
+        with p.open("rb") as fh:
+            return fh.read(len(MAGIC)) == MAGIC
+
+    @classmethod
+    def open(cls, path: str | Path, **options: Any) -> McapSource:
+        return cls(path, **options)
+
+    def __enter__(self) -> McapSource:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.log.close()
+
+    # -- topics ------------------------------------------------------------------------------
+
+    def _topics_of(self, schemas: Collection[str]) -> list[str]:
+        return sorted(t for t, s in self._schema.items() if s in schemas)
+
+    def _probe(self, topic: str) -> ImageRecord | None:
+        """The first image of a topic (None when it has none or it cannot be decoded)."""
+        if topic not in self._probes:
+            record = None
+            for raw in self.log.messages([topic]):
+                try:
+                    out = self._adapt(raw.channel, raw.data, raw.log_time_ns)
+                except InputError as exc:
+                    log.debug("%s: first message undecodable: %s", topic, exc)
+                    break
+                record = out if isinstance(out, ImageRecord) else None
+                break
+            self._probes[topic] = record
+        return self._probes[topic]
+
+    def _image_role(self, topic: str) -> str:
+        probe = self._probe(topic)
+        if probe is not None:
+            return "depth" if probe.kind == "depth" else "rgb"
+        return "depth" if "depth" in topic.lower() else "rgb"
+
+    def _candidate_row(self, topic: str) -> list[str]:
+        ch = self._channels[topic]
+        encoding = ""
+        if self._schema[topic] in IMAGE_SCHEMAS:
+            probe = self._probe(topic)
+            encoding = probe.encoding if probe is not None else "?"
+        st = self._stats().get(ch.id)
+        count = st.count if st else 0
+        rate = _rate(st.count, st.first_ns, st.last_ns) if st else None
+        return [topic, ch.schema_name, encoding, str(count), f"{rate:.1f}" if rate else "-"]
+
+    def _stats(self) -> dict[int, Any]:
+        return self.log.stats()
+
+    def topic(self, role: str, required: bool = True) -> str | None:
+        """The topic used for ``role`` (rgb, depth, camera, odometry, groundtruth, imu)."""
+        if role in self._chosen:
+            return self._chosen[role]
+        schemas, flag = {
+            "rgb": (IMAGE_SCHEMAS, "--rgb-topic"),
+            "depth": (IMAGE_SCHEMAS, "--depth-topic"),
+            "camera": (CAMERA_SCHEMAS, "--camera-info-topic"),
+            "odometry": (ODOM_SCHEMAS, "--odom-topic"),
+            "groundtruth": (POSE_SCHEMAS, "--gt-topic"),
+            "imu": (IMU_SCHEMAS, "a single Imu topic"),
+        }[role]
+        typed = self._topics_of(schemas)
+        if role in ("rgb", "depth"):
+            candidates = [t for t in typed if self._image_role(t) == role]
+        else:
+            candidates = typed
+        wanted = self._want.get(role)
+        chosen: str | None = None
+        if wanted is not None:
+            if wanted not in self._channels:
+                raise TopicNotFoundError(
+                    f"{self.path}: no topic {wanted} ({flag})",
+                    hint=f"choose one of the {role} candidates below",
+                    candidates=[self._candidate_row(t) for t in typed],
+                )
+            if self._schema[wanted] not in schemas:
+                raise TopicNotFoundError(
+                    f"{self.path}: {flag} {wanted} has type {self._channels[wanted].schema_name}, "
+                    f"not one of {', '.join(sorted(schemas))}",
+                    candidates=[self._candidate_row(t) for t in typed],
+                )
+            chosen = wanted
+        elif len(candidates) == 1:
+            chosen = candidates[0]
+        elif len(candidates) > 1 and role == "groundtruth":
+            # Odometry is a pose topic too, but rarely the ground truth a user means.
+            non_odom = [t for t in candidates if self._schema[t] != "nav_msgs/msg/Odometry"]
+            if len(non_odom) == 1:
+                chosen = non_odom[0]
+        if chosen is None and (required or len(candidates) > 1):
+            what = "no" if not candidates else f"{len(candidates)}"
+            raise TopicNotFoundError(
+                f"{self.path}: {what} {role} topic{'s' if len(candidates) != 1 else ''} "
+                f"found; choose one with {flag}",
+                hint="the table lists the topics of a fitting type",
+                candidates=[self._candidate_row(t) for t in (candidates or typed)],
+            )
+        self._chosen[role] = chosen
+        return chosen
+
+    # -- camera --------------------------------------------------------------------------------
+
+    def camera(self) -> tuple[PinholeCamera, str]:
+        """The colour camera and a description of where it came from."""
+        if self._camera is not None:
+            return self._camera
+        explicit = self._want["camera"]
+        cam_topics = self._topics_of(CAMERA_SCHEMAS)
+        rgb = str(self.topic("rgb"))
+        found: tuple[str, str] | None = None
+        if explicit is not None:
+            found = (self.topic("camera") or explicit, f"topic {explicit} (--camera-info-topic)")
+        else:
+            sibling = _sibling_camera_topic(rgb, cam_topics)
+            if sibling is not None:
+                found = (sibling, f"topic {sibling} (beside {rgb})")
+            else:
+                probe = self._probe(rgb)
+                frame = probe.frame_id if probe is not None else ""
+                for t in cam_topics:
+                    rec = self._first_record(t)
+                    if frame and isinstance(rec, CameraInfoRecord) and rec.frame_id == frame:
+                        found = (t, f"topic {t} (frame id {frame} matches {rgb})")
+                        break
+        options_given = any(v is not None for v in self._camera_options)
+        if found is None and not options_given and len(cam_topics) == 1:
+            found = (cam_topics[0], f"topic {cam_topics[0]} (the log's only calibration topic)")
+        if found is not None:
+            rec = self._first_record(found[0])
+            if not isinstance(rec, CameraInfoRecord):
+                raise InputError(f"{self.path}: camera topic {found[0]} has no readable message")
+            self._camera = (rec.camera, found[1])
+            return self._camera
+        from slamcli.formats.camera import resolve_camera
+
+        camera, fx, fy, cx, cy = self._camera_options
+        resolved = resolve_camera(self.path.parent, camera, fx, fy, cx, cy)
+        self._camera = (resolved.camera, resolved.source)
+        return self._camera
+
+    def _first_record(self, topic: str) -> Any:
+        for raw in self.log.messages([topic]):
+            return self._adapt(raw.channel, raw.data, raw.log_time_ns)
+        return None
+
+    # -- decoding ------------------------------------------------------------------------------
+
+    def _adapt(self, channel: ChannelInfo, data: bytes, log_time_ns: int) -> Any:
+        pair = self._decoders.get(channel.topic)
+        if pair is None:
+            adapter = adapter_for(channel.schema_name)
+            if adapter is None:
+                raise DecodeError(
+                    f"{self.path}: topic {channel.topic} has type {channel.schema_name}, which "
+                    "slamcli does not read"
+                )
+            pair = self._decoders[channel.topic] = (decoder_for(channel), adapter)
+        decode, adapt = pair
+        return adapt(decode(data), log_time_ns, channel.topic)
+
+    def _records(self, topics: Collection[str]) -> Iterator[tuple[str, Any]]:
+        """(topic, record) in log-time order; undecodable messages skipped and counted."""
+        for raw in self.log.messages(list(topics)):
+            try:
+                rec = self._adapt(raw.channel, raw.data, raw.log_time_ns)
+            except DecodeError as exc:
+                if self.strict or raw.channel.topic not in self._decoders:
+                    raise
+                name = f"{raw.channel.topic}@{raw.log_time_ns}"
+                self.stats.skipped += 1
+                self.stats.skipped_names.append(name)
+                log.warning("skipping undecodable message %s: %s", name, exc.msg)
+                continue
+            yield raw.channel.topic, rec
+        self._note_damage()
+
+    def _note_damage(self) -> None:
+        for problem in self.log.health.loss_problems():
+            if problem not in self.stats.data_loss:
+                self.stats.data_loss.append(problem)
+                log.warning("%s: %s", self.path, problem)
+
+    # -- frames --------------------------------------------------------------------------------
+
+    def frames(self, kinds: Collection[str] = ("rgbd",)) -> Iterator[Frame]:
+        """Frames of the given kinds (rgbd, image, odometry, imu) in time order."""
+        unknown = set(kinds) - {"rgbd", "image", "odometry", "imu"}
+        if unknown:
+            raise ConfigError(f"mcap sources do not provide {', '.join(sorted(unknown))} frames")
+        roles: dict[str, str] = {}
+        if "rgbd" in kinds or "image" in kinds:
+            roles[str(self.topic("rgb"))] = "rgb"
+        if "rgbd" in kinds:
+            roles[str(self.topic("depth"))] = "depth"
+        if "odometry" in kinds:
+            roles[str(self.topic("odometry"))] = "odometry"
+        if "imu" in kinds:
+            roles[str(self.topic("imu"))] = "imu"
+        camera = self.camera()[0] if ("rgbd" in kinds or "image" in kinds) else None
+        pairer = _StreamPairer(self.max_dt_ns, self.dt_offset_ns) if "rgbd" in kinds else None
+        self._frame_stamps = []
+        for topic, rec in self._records(roles):
+            role = roles[topic]
+            if role in ("rgb", "depth") and isinstance(rec, ImageRecord) and camera is not None:
+                if pairer is None:
+                    yield self._image_frame(rec, camera)
+                    continue
+                pairer.add(role, rec)
+                yield from self._emit(pairer.ready(), camera)
+            elif role == "odometry" and isinstance(rec, PoseRecord | TwistRecord):
+                yield _odometry_frame(rec)
+            elif role == "imu" and isinstance(rec, ImuFrame):
+                yield rec
+        if pairer is not None and camera is not None:
+            yield from self._emit(pairer.ready(final=True), camera)
+
+    def _image_frame(self, rec: ImageRecord, camera: PinholeCamera | None) -> ImageFrame:
+        self.stats.read += 1
+        self._frame_stamps.append(rec.stamp_ns)
+        return ImageFrame(rec.stamp_ns, rec.array, camera, name=f"{rec.frame_id}@{rec.stamp_ns}")
+
+    def _emit(
+        self, pairs: list[tuple[ImageRecord, ImageRecord]], camera: PinholeCamera
+    ) -> Iterator[RgbdFrame]:
+        for rgb, depth in pairs:
+            colour = rgb.array if rgb.kind == "rgb" else np.repeat(rgb.array[..., None], 3, 2)
+            if colour.shape[:2] != depth.array.shape:
+                raise InputError(
+                    f"{self.path}: colour images are {colour.shape[1]}x{colour.shape[0]} but "
+                    f"depth images {depth.array.shape[1]}x{depth.array.shape[0]}",
+                    hint="slamcli needs depth registered to the colour camera "
+                    "(e.g. the aligned_depth_to_color topic)",
+                )
+            self.stats.read += 1
+            self._frame_stamps.append(rgb.stamp_ns)
+            yield RgbdFrame(
+                rgb.stamp_ns,
+                colour,
+                depth.array,
+                camera,
+                depth_stamp_ns=depth.stamp_ns,
+                name=f"{self.topic('rgb')}@{rgb.stamp_ns}",
+            )
+
+    # -- ground truth ----------------------------------------------------------------------------
+
+    def groundtruth(self) -> Trajectory | None:
+        """Ground truth; after frames were read, interpolated to their colour stamps."""
+        samples = self._groundtruth_samples()
+        if samples is None:
+            return None
+        if not self._frame_stamps:
+            return samples
+        query = np.unique(np.asarray(self._frame_stamps, dtype=np.int64))
+        valid, poses = interpolate_poses(samples.stamps_ns, samples.world_from_body, query)
+        if not valid.any():
+            log.warning("%s: ground truth does not overlap the frames in time", self.path)
+            return None
+        return Trajectory(query[valid], poses[valid])
+
+    def _groundtruth_samples(self) -> Trajectory | None:
+        if self.gt_frame is not None:
+            return self._tf_groundtruth(self.gt_frame)
+        topic = self.topic("groundtruth", required=self._want["groundtruth"] is not None)
+        if topic is None:
+            return None
+        stamps, poses = [], []
+        for _, rec in self._records([topic]):
+            if isinstance(rec, PoseRecord):
+                stamps.append(rec.stamp_ns)
+                poses.append(rec.parent_from_child)
+        return _trajectory(stamps, poses, f"{self.path}: ground-truth topic {topic}")
+
+    def _tf_groundtruth(self, frame: str) -> Trajectory | None:
+        buffer = TfBuffer()
+        moving: dict[str, list[int]] = {}
+        for _, rec in self._records(self._topics_of(TF_SCHEMAS)):
+            if isinstance(rec, TransformRecord):
+                buffer.add(rec)
+                if not rec.static:
+                    for p in rec.transforms:
+                        moving.setdefault(p.child_frame_id.lstrip("/"), []).append(p.stamp_ns)
+        parents = buffer.frames()
+        frame = frame.lstrip("/")
+        if frame not in parents:
+            raise InputError(
+                f"{self.path}: tf has no frame {frame!r} (--gt-frame)",
+                hint=f"frames in tf: {', '.join(sorted(parents)) or 'none'}",
+            )
+        # Sample at the stamps of the moving transform nearest the frame (a sensor frame is
+        # usually fixed to a base link that odometry moves).
+        node, stamps = frame, None
+        while True:
+            if node in moving:
+                stamps = moving[node]
+                break
+            parent = parents.get(node)
+            if not parent:
+                break
+            node = parent
+        root = node
+        while parents.get(root):
+            root = str(parents[root])
+        if stamps is None:
+            raise InputError(f"{self.path}: nothing in tf moves frame {frame!r}; no ground truth")
+        query = np.unique(np.asarray(stamps, dtype=np.int64))
+        valid, poses = buffer.lookup_many(root, frame, query)
+        return _trajectory(list(query[valid]), list(poses[valid]), f"{self.path}: tf {frame}")
+
+    # -- info ------------------------------------------------------------------------------------
+
+    def info(self, deep: bool = False, progress: ProgressFn | None = None) -> SourceInfo:
+        stats = self._stats()
+        streams = []
+        problems: list[str] = []
+        undecodable: dict[str, str] = {}
+        for topic, ch in sorted(self._channels.items()):
+            st = stats.get(ch.id)
+            count = st.count if st else 0
+            try:
+                decoder_for(ch)
+                if adapter_for(ch.schema_name) is None:
+                    undecodable[topic] = f"type {ch.schema_name} is not read by slamcli"
+            except DecodeError as exc:
+                undecodable[topic] = exc.msg
+            streams.append(
+                StreamInfo(
+                    name=topic,
+                    kind=_kind(self._schema[topic]),
+                    count=count,
+                    rate_hz=_rate(count, st.first_ns, st.last_ns) if st else None,
+                    start_s=st.first_ns * 1e-9 if st and st.first_ns is not None else None,
+                    end_s=st.last_ns * 1e-9 if st and st.last_ns is not None else None,
+                    detail=f"{ch.schema_name} ({ch.message_encoding})",
+                )
+            )
+        frames = 0
+        camera: PinholeCamera | None = None
+        camera_source = ""
+        details: dict[str, Any] = {"undecodable": undecodable}
+        try:
+            rgb, depth = self.topic("rgb"), self.topic("depth")
+            camera, camera_source = self.camera()
+            details["rgb_topic"], details["depth_topic"] = rgb, depth
+            frames = self._count_pairs(deep, progress)
+        except TopicNotFoundError as exc:
+            problems.append(f"no RGB-D frames: {exc.msg}")
+        gt_count = 0
+        try:
+            gt = self._groundtruth_samples()
+            gt_count = len(gt) if gt is not None else 0
+        except InputError as exc:
+            problems.append(f"ground truth: {exc.msg}")
+        health = self.log.health
+        details["health"] = {
+            "summary_present": health.summary_present,
+            "truncated": health.truncated,
+            "crc_checked": health.crc_checked,
+            "bad_chunks": len(health.bad_chunks),
+            "chunk_overlap": health.chunk_overlap,
+            "dropped_late": health.dropped_late,
+        }
+        problems.extend(health.problems())
+        problems.extend(
+            f"channel {t} cannot be read ({r}); ignored" for t, r in undecodable.items()
+        )
+        if self.stats.skipped:
+            details["unreadable"] = list(self.stats.skipped_names)
+        return SourceInfo(
+            format="mcap",
+            path=str(self.path),
+            streams=streams,
+            frames=frames,
+            groundtruth=gt_count,
+            camera=camera,
+            camera_source=camera_source,
+            problems=problems,
+            details=details,
+        )
+
+    def _count_pairs(self, deep: bool, progress: ProgressFn | None) -> int:
+        """Paired RGB-D frames: by header stamps when ``deep``, else by log times."""
+        rgb, depth = str(self.topic("rgb")), str(self.topic("depth"))
+        if deep:
+            n = 0
+            for _ in self.frames(("rgbd",)):
+                n += 1
+                if progress:
+                    progress(n, None)
+            self._frame_stamps = []
+            return n
+        times: dict[str, list[int]] = {rgb: [], depth: []}
+        for raw in self.log.messages([rgb, depth]):
+            times[raw.channel.topic].append(raw.log_time_ns)
+        first, _ = associate_stamps(
+            np.asarray(times[rgb], dtype=np.int64),
+            np.asarray(times[depth], dtype=np.int64),
+            self.max_dt_ns,
+            self.dt_offset_ns,
+        )
+        return len(first)
+
+
+class _StreamPairer:
+    """TUM associate.py pairing of two image streams, settled as the streams advance."""
+
+    def __init__(self, max_dt_ns: int, offset_ns: int) -> None:
+        self.max_dt = max_dt_ns
+        self.offset = offset_ns
+        self.buf: dict[str, list[ImageRecord]] = {"rgb": [], "depth": []}
+        self.newest: dict[str, int | None] = {"rgb": None, "depth": None}
+
+    def add(self, role: str, rec: ImageRecord) -> None:
+        stamp = rec.stamp_ns + (self.offset if role == "depth" else 0)
+        buf = self.buf[role]
+        keys = [self._key(role, r) for r in buf]
+        buf.insert(bisect.bisect_right(keys, stamp), rec)
+        newest = self.newest[role]
+        self.newest[role] = stamp if newest is None else max(newest, stamp)
+
+    def _key(self, role: str, rec: ImageRecord) -> int:
+        return rec.stamp_ns + (self.offset if role == "depth" else 0)
+
+    def ready(self, final: bool = False) -> list[tuple[ImageRecord, ImageRecord]]:
+        rgb, depth = self.buf["rgb"], self.buf["depth"]
+        if not rgb or not depth:
+            if final:
+                rgb.clear()
+                depth.clear()
+            return []
+        if final:
+            cut = None
+        else:
+            newest = [v for v in self.newest.values() if v is not None]
+            horizon = min(newest) - self.max_dt
+            cut = self._safe_cut(horizon)
+            if cut is None and len(rgb) + len(depth) > _FORCE_FLUSH:
+                cut = horizon
+            if cut is None:
+                return []
+        take_r = [r for r in rgb if cut is None or r.stamp_ns < cut]
+        take_d = [d for d in depth if cut is None or self._key("depth", d) < cut]
+        i, j = associate_stamps(
+            np.array([r.stamp_ns for r in take_r], dtype=np.int64),
+            np.array([d.stamp_ns for d in take_d], dtype=np.int64),
+            self.max_dt,
+            self.offset,
+        )
+        pairs = sorted(zip(i.tolist(), j.tolist(), strict=True))
+        out = [(take_r[a], take_d[b]) for a, b in pairs]
+        del rgb[: len(take_r)]
+        del depth[: len(take_d)]
+        return out
+
+    def _safe_cut(self, horizon: int) -> int | None:
+        """A time below ``horizon`` that no candidate pair spans (a gap of >= max_dt)."""
+        merged = sorted(
+            [r.stamp_ns for r in self.buf["rgb"]]
+            + [self._key("depth", d) for d in self.buf["depth"]]
+        )
+        cut = None
+        for a, b in itertools.pairwise(merged):
+            if b > horizon:
+                break
+            if b - a >= self.max_dt:
+                cut = b
+        return cut
+
+
+def _sibling_camera_topic(image_topic: str, camera_topics: list[str]) -> str | None:
+    parts = image_topic.strip("/").split("/")
+    for depth in range(len(parts) - 1, 0, -1):
+        prefix = "/" + "/".join(parts[:depth])
+        for name in ("camera_info", "calibration"):
+            if f"{prefix}/{name}" in camera_topics:
+                return f"{prefix}/{name}"
+    return None
+
+
+def _odometry_frame(rec: PoseRecord | TwistRecord) -> OdometryFrame:
+    if isinstance(rec, TwistRecord):
+        return OdometryFrame(rec.stamp_ns, v=rec.v, omega=rec.omega)
+    v, omega = rec.twist if rec.twist is not None else (None, None)
+    return OdometryFrame(rec.stamp_ns, v=v, omega=omega, world_from_body=rec.parent_from_child)
+
+
+def _trajectory(stamps: list[int], poses: list[Any], what: str) -> Trajectory | None:
+    if not stamps:
+        log.warning("%s has no poses", what)
+        return None
+    s = np.asarray(stamps, dtype=np.int64)
+    order = np.argsort(s, kind="stable")
+    s = s[order]
+    keep = np.concatenate([[True], np.diff(s) > 0])
+    if not keep.all():
+        log.debug("%s: %d repeated stamps dropped", what, int((~keep).sum()))
+    return Trajectory(s[keep], np.stack(poses)[order][keep])
+
+
+def _rate(count: int, first_ns: int | None, last_ns: int | None) -> float | None:
+    if count < 2 or first_ns is None or last_ns is None or last_ns <= first_ns:
+        return None
+    return (count - 1) / ((last_ns - first_ns) * 1e-9)
+
+
+def _kind(schema: str) -> str:
+    for kind, schemas in (
+        ("image", IMAGE_SCHEMAS),
+        ("camera", CAMERA_SCHEMAS),
+        ("tf", TF_SCHEMAS),
+        ("odometry", ODOM_SCHEMAS),
+        ("pose", POSE_SCHEMAS),
+        ("imu", IMU_SCHEMAS),
+    ):
+        if schema in schemas:
+            return kind
+    return "other"
