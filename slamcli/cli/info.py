@@ -12,14 +12,19 @@ from slamcli.cli import render
 from slamcli.cli.common import boundary
 from slamcli.cli.source_options import (
     DEFAULTS,
+    CameraInfoTopic,
     CameraOpt,
     Cx,
     Cy,
     DepthFactor,
+    DepthTopic,
     DtOffset,
     Fx,
     Fy,
+    GtFrame,
+    GtTopic,
     MaxDt,
+    RgbTopic,
     SourceOptions,
     Strict,
     Undistort,
@@ -32,8 +37,14 @@ if TYPE_CHECKING:
 
 HELP = """Show what an input holds: streams, paired RGB-D frames, camera, ground truth, problems.
 
-Exit codes: 0 ok; 1 bad input (with --strict, also an unreadable image); 3 some listed images \
-are missing or (with --deep) cannot be decoded, so reading would skip frames.
+For an MCAP log: every topic with its type, encoding, count and rate; the log's health \
+(summary, truncation, CRCs, overlapping chunks); the colour and depth topics and how many \
+frames pair (by log time; --deep decodes every frame and pairs by header stamps, which also \
+checks every chunk's CRC).
+
+Exit codes: 0 ok; 1 bad input (with --strict, also an unreadable image or a damaged log); 2 an \
+ambiguous or missing topic choice (the candidates are listed); 3 some listed images are missing \
+or (with --deep) cannot be decoded, or the log is damaged, so reading would lose data.
 """
 
 
@@ -62,10 +73,31 @@ def info(
     cy: Cy = None,
     undistort: Undistort = False,
     strict: Strict = False,
+    rgb_topic: RgbTopic = None,
+    depth_topic: DepthTopic = None,
+    camera_info_topic: CameraInfoTopic = None,
+    gt_topic: GtTopic = None,
+    gt_frame: GtFrame = None,
 ) -> None:
     from slamcli.formats import open_source
 
-    opts = SourceOptions(max_dt, dt_offset, depth_factor, camera, fx, fy, cx, cy, undistort, strict)
+    opts = SourceOptions(
+        max_dt,
+        dt_offset,
+        depth_factor,
+        camera,
+        fx,
+        fy,
+        cx,
+        cy,
+        undistort,
+        strict,
+        rgb_topic=rgb_topic,
+        depth_topic=depth_topic,
+        camera_info_topic=camera_info_topic,
+        gt_topic=gt_topic,
+        gt_frame=gt_frame,
+    )
     with open_source(input, **opts.open_kwargs()) as source:
         if deep:
             with render.progress("decoding images") as progress:
@@ -81,6 +113,11 @@ def info(
         raise DataLossError(
             f"{input}: {len(unreadable)} listed image(s) missing or unreadable",
             hint="reading skips those frames; --strict stops at the first one instead",
+        )
+    if result.details.get("data_loss"):
+        raise DataLossError(
+            f"{input}: the log is damaged; reading uses what is left",
+            hint="--strict stops instead; 'mcap recover' can rebuild a damaged MCAP file",
         )
 
 
@@ -103,6 +140,19 @@ def _show(info: SourceInfo) -> None:
     )
     d = info.details
     items: dict[str, Any] = {"frames": f"{info.frames} paired RGB-D frames"}
+    if d.get("rgb_topic"):
+        items["topics"] = f"colour {d['rgb_topic']}, depth {d['depth_topic']}"
+    health = d.get("health")
+    if health:
+        items["health"] = ", ".join(
+            [
+                "summary present" if health["summary_present"] else "no summary",
+                "truncated" if health["truncated"] else "complete",
+                "CRCs checked" if health["crc_checked"] else "CRCs not checked",
+                f"{health['bad_chunks']} bad chunk(s)",
+                "chunks overlap" if health["chunk_overlap"] else "no chunk overlap",
+            ]
+        )
     if "unmatched_rgb" in d:
         items["unmatched"] = (
             f"colour {d['unmatched_rgb']}, depth {d['unmatched_depth']} "

@@ -542,6 +542,8 @@ class McapSource:
             gt_count = len(gt) if gt is not None else 0
         except InputError as exc:
             problems.append(f"ground truth: {exc.msg}")
+        self._note_damage()
+        details["data_loss"] = list(self.stats.data_loss)
         health = self.log.health
         details["health"] = {
             "summary_present": health.summary_present,
@@ -583,6 +585,7 @@ class McapSource:
         times: dict[str, list[int]] = {rgb: [], depth: []}
         for raw in self.log.messages([rgb, depth]):
             times[raw.channel.topic].append(raw.log_time_ns)
+        self._note_damage()
         first, _ = associate_stamps(
             np.asarray(times[rgb], dtype=np.int64),
             np.asarray(times[depth], dtype=np.int64),
