@@ -198,6 +198,8 @@ def _groundtruth(info: SourceInfo) -> str:
     if not info.groundtruth:
         return "none"
     text = f"{info.groundtruth} poses"
+    if info.details.get("groundtruth_from"):
+        text += f" from {info.details['groundtruth_from']}"
     coverage = info.details.get("groundtruth_coverage")
     if coverage is not None:
         text += (

@@ -649,12 +649,11 @@ class McapLog:
 
     def _fetch(
         self, f: BinaryIO, ci: ChunkIndex, cache: dict[str, _Decompressor]
-    ) -> tuple[bytes, int, int]:
-        """Read, decompress and checksum one indexed chunk (runs in the lookahead worker).
+    ) -> tuple[bytes, int]:
+        """Read and decompress one indexed chunk (runs in the lookahead worker).
 
-        Returns the records, the CRC the chunk should have and the CRC it has (0 when the
-        writer left the CRC out); zlib releases the GIL, so checksumming here overlaps with
-        the caller decoding the previous chunk.
+        The CRC is checked by the caller: decompression here and checksumming there both
+        release the GIL, so they overlap on two cores.
         """
         f.seek(ci.chunk_start_offset)
         record = f.read(ci.chunk_length)
@@ -663,12 +662,11 @@ class McapLog:
         op, length = _RECORD.unpack_from(record)
         if op != _CHUNK or _RECORD.size + length > len(record):
             raise _BadChunkError("is not a chunk record where the index points")
-        raw, crc = self._inflate(memoryview(record)[_RECORD.size : _RECORD.size + length], cache)
-        return raw, crc, zlib.crc32(raw) if crc else 0
+        return self._inflate(memoryview(record)[_RECORD.size : _RECORD.size + length], cache)
 
     def _open_chunk(
         self,
-        fetched: Future[tuple[bytes, int, int]] | None,
+        fetched: Future[tuple[bytes, int]] | None,
         ci: ChunkIndex,
         topics: frozenset[str] | None,
         wanted: set[int],
@@ -679,8 +677,8 @@ class McapLog:
         if fetched is None:
             return None
         try:
-            raw, crc, actual = fetched.result()
-            self._compare_crc(crc, actual)
+            raw, crc = fetched.result()
+            self._check_crc(raw, crc)
             msgs = self._parse_chunk(raw, topics, wanted, lo, hi)
         except _BadChunkError as exc:
             self._bad_chunk(

@@ -540,6 +540,10 @@ class McapSource:
         try:
             gt = self._groundtruth_samples()
             gt_count = len(gt) if gt is not None else 0
+            if gt is not None:
+                details["groundtruth_from"] = (
+                    f"tf frame {self.gt_frame}" if self.gt_frame else self._chosen["groundtruth"]
+                )
         except InputError as exc:
             problems.append(f"ground truth: {exc.msg}")
         self._note_damage()
