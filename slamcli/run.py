@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from slamcli.errors import InputError, PipelineError
+from slamcli.formats.base import SourceInfo
 from slamcli.rundir import RunDir, Timings, hash_input
 from slamcli.types import ProgressFn, SlamResult, Trajectory
 
@@ -22,6 +23,8 @@ class RunOutcome:
 
     run_dir: Path
     result: SlamResult
+    input_path: Path
+    info: SourceInfo
     metrics: dict[str, Any] = field(default_factory=dict)
     counts: dict[str, Any] = field(default_factory=dict)
     outputs: list[Path] = field(default_factory=list)
@@ -119,7 +122,9 @@ def run_pipeline(
         extra={"source": info.to_dict(), "data_loss": stats.data_loss},
     )
     outputs.append(run.file("run.json"))
-    return RunOutcome(run.path, result, metrics, counts, outputs, list(stats.data_loss))
+    return RunOutcome(
+        run.path, result, Path(input_path), info, metrics, counts, outputs, list(stats.data_loss)
+    )
 
 
 def _evaluate(

@@ -38,16 +38,5 @@ def demo(
 
     with render.progress("tracking", None) as progress:
         outcome = run_demo(out, data=data, force=force, progress=progress)
-    info, run = outcome.info, outcome.run
-    render.key_values(
-        "Input",
-        {
-            "data": outcome.data,
-            "format": info.format,
-            "RGB-D frames": info.frames,
-            "ground-truth poses": info.groundtruth,
-            "camera": info.camera_source,
-        },
-    )
-    render.run_summary(run)
-    exit_if_data_lost(run, outcome.data)
+    render.run_summary(outcome)
+    exit_if_data_lost(outcome, outcome.input_path)

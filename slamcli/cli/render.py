@@ -129,7 +129,19 @@ def progress(description: str, total: int | None = None) -> Iterator[ProgressFn]
 
 
 def run_summary(outcome: RunOutcome) -> None:
-    """Accuracy table (when the run was scored) and the files a run wrote."""
+    """The input, the accuracy table (when the run was scored) and the files a run wrote."""
+    info = outcome.info
+    key_values(
+        "Input",
+        {
+            "data": outcome.input_path,
+            "format": info.format,
+            "RGB-D frames": f"{outcome.counts.get('frames_processed', 0)} processed "
+            f"of {info.frames}",
+            "ground-truth poses": info.groundtruth,
+            "camera": info.camera_source,
+        },
+    )
     ev = outcome.metrics.get("evaluation")
     if ev:
         stats = [("ATE (m)", ev["ate"])]
