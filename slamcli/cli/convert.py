@@ -181,18 +181,7 @@ def convert(
     from slamcli.formats import open_source
     from slamcli.formats.mcap.write import write_source_mcap
 
-    opts = SourceOptions(
-        max_dt=max_dt,
-        dt_offset=dt_offset,
-        depth_factor=depth_factor,
-        camera=camera,
-        fx=fx,
-        fy=fy,
-        cx=cx,
-        cy=cy,
-        undistort=undistort,
-        strict=strict,
-    )
+    opts = SourceOptions.pick(locals())
     with (
         open_source(input, **opts.open_kwargs()) as source,
         render.progress("converting frames") as progress,

@@ -81,23 +81,7 @@ def info(
 ) -> None:
     from slamcli.formats import open_source
 
-    opts = SourceOptions(
-        max_dt,
-        dt_offset,
-        depth_factor,
-        camera,
-        fx,
-        fy,
-        cx,
-        cy,
-        undistort,
-        strict,
-        rgb_topic=rgb_topic,
-        depth_topic=depth_topic,
-        camera_info_topic=camera_info_topic,
-        gt_topic=gt_topic,
-        gt_frame=gt_frame,
-    )
+    opts = SourceOptions.pick(locals())
     with open_source(input, **opts.open_kwargs()) as source:
         if deep:
             with render.progress("decoding images") as progress:

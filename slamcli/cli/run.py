@@ -88,24 +88,7 @@ def odometry(
 
     Example: [bold]slamcli run odometry rgbd_dataset_freiburg1_xyz --out runs/xyz[/]
     """
-    opts = SourceOptions(
-        max_dt,
-        dt_offset,
-        depth_factor,
-        camera,
-        fx,
-        fy,
-        cx,
-        cy,
-        undistort,
-        strict,
-        rgb_topic=rgb_topic,
-        depth_topic=depth_topic,
-        camera_info_topic=camera_info_topic,
-        odom_topic=odom_topic,
-        gt_topic=gt_topic,
-        gt_frame=gt_frame,
-    )
+    opts = SourceOptions.pick(locals())
     _run("odometry", input, out, force, max_frames, mcap, opts)
 
 

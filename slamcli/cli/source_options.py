@@ -1,7 +1,7 @@
 """Options shared by every command that reads an RGB-D source (``info``, ``run dense``, ...).
 
 A command declares the options with the ``Annotated`` aliases below and their defaults from
-:data:`DEFAULTS`, then hands them to :class:`SourceOptions`::
+:data:`DEFAULTS`, then collects them with :meth:`SourceOptions.pick`::
 
     def cmd(
         input: Path,
@@ -13,8 +13,7 @@ A command declares the options with the ``Annotated`` aliases below and their de
         undistort: Undistort = False,
         strict: Strict = False,
     ) -> None:
-        opts = SourceOptions(max_dt, dt_offset, depth_factor, camera, fx, fy, cx, cy,
-                             undistort, strict)
+        opts = SourceOptions.pick(locals())
         with open_source(input, **opts.open_kwargs()) as source: ...
 """
 
@@ -152,6 +151,11 @@ class SourceOptions:
     odom_topic: str | None = None
     gt_topic: str | None = None
     gt_frame: str | None = None
+
+    @classmethod
+    def pick(cls, params: dict[str, Any]) -> SourceOptions:
+        """The source options among a command's parameters (pass ``locals()``)."""
+        return cls(**{f.name: params[f.name] for f in fields(cls) if f.name in params})
 
     def open_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for :func:`slamcli.formats.open_source`.
