@@ -99,6 +99,9 @@ def run_pipeline(
         "frames_processed": frames,
         **result.counts,
     }
+    with timings.stage("export"):
+        outputs += _write_products(run, result)
+
     if mcap:
         from slamcli.formats.mcap.write import write_result_log
 
@@ -142,3 +145,23 @@ def _evaluate(
     with timings.stage("report"):
         plot_evaluation(run.output("report.png"), ev, "ground truth", "estimate")
     return {"evaluation": ev.to_dict()}
+
+
+def _write_products(run: RunDir, result: SlamResult) -> list[Path]:
+    """keyframes.tum, mesh.ply and points.ply, for the parts of the result a pipeline made."""
+    from slamcli.formats.trajectory import write_tum
+
+    written = []
+    if result.keyframes is not None and len(result.keyframes):
+        written.append(write_tum(run.output("keyframes.tum"), result.keyframes))
+    if result.mesh is not None and len(result.mesh.faces):
+        from slamcli.formats.mesh import write_ply
+
+        written.append(write_ply(run.output("mesh.ply"), result.mesh))
+    if result.points is not None and len(result.points):
+        from slamcli.formats.mesh import write_points_ply
+
+        written.append(
+            write_points_ply(run.output("points.ply"), result.points, result.point_colors)
+        )
+    return written

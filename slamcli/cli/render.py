@@ -69,6 +69,12 @@ def print_json(data: Any) -> None:
     sys.stdout.flush()
 
 
+def plain(text: str) -> None:
+    """Text exactly as given on stdout, without markup (file contents such as TOML)."""
+    sys.stdout.write(text)
+    sys.stdout.flush()
+
+
 def table(
     title: str | None,
     columns: Sequence[str],

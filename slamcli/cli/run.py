@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -29,6 +29,7 @@ from slamcli.cli.source_options import (
     Strict,
     Undistort,
 )
+from slamcli.pipelines import PIPELINES
 
 run_app = typer.Typer(
     help="Run a SLAM pipeline over a log and write a run folder (trajectory, report, run.json).",
@@ -52,34 +53,26 @@ Mcap = Annotated[
 ]
 
 
-@run_app.command("odometry")
-@boundary
-def odometry(
-    input: Annotated[
-        Path, typer.Argument(help="A TUM RGB-D folder or an MCAP log.", show_default=False)
-    ],
-    out: Out,
-    force: Force = False,
-    max_frames: MaxFrames = None,
-    mcap: Mcap = False,
-    max_dt: MaxDt = DEFAULTS.max_dt,
-    dt_offset: DtOffset = DEFAULTS.dt_offset,
-    depth_factor: DepthFactor = None,
-    camera: CameraOpt = None,
-    fx: Fx = None,
-    fy: Fy = None,
-    cx: Cx = None,
-    cy: Cy = None,
-    undistort: Undistort = False,
-    strict: Strict = False,
-    rgb_topic: RgbTopic = None,
-    depth_topic: DepthTopic = None,
-    camera_info_topic: CameraInfoTopic = None,
-    gt_topic: GtTopic = None,
-    gt_frame: GtFrame = None,
-    odom_topic: OdomTopic = None,
-) -> None:
-    """Frame-to-frame RGB-D odometry: the simplest tracker, and the baseline for the others.
+ConfigFile = Annotated[
+    Path | None,
+    typer.Option(
+        "--config",
+        help="TOML file whose [PIPELINE] table overrides the defaults "
+        "(see 'slamcli config dump PIPELINE').",
+        show_default=False,
+    ),
+]
+Sets = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--set",
+        help="Override one setting, e.g. --set voxel_m=0.01 (repeatable; applied after --config).",
+        show_default=False,
+    ),
+]
+
+DOCS = {
+    "odometry": """Frame-to-frame RGB-D odometry: the simplest tracker, the baseline for others.
 
     Registers each frame to the previous one (Open3D's multi-scale photometric + geometric
     kernel, seeded by a constant-velocity prior). Writes trajectory.tum, report.png and
@@ -87,9 +80,61 @@ def odometry(
     be skipped.
 
     Example: [bold]slamcli run odometry rgbd_dataset_freiburg1_xyz --out runs/xyz[/]
-    """
-    opts = SourceOptions.pick(locals())
-    _run("odometry", input, out, force, max_frames, mcap, opts)
+    """,
+    "dense": """Dense RGB-D SLAM: a coloured mesh and a trajectory from an RGB-D log.
+
+    Tracks each frame against a ray-cast of the fused TSDF volume (seeded by ORB features and
+    PnP), fuses trusted frames, closes loops between keyframes and re-integrates with the
+    optimised poses. Writes trajectory.tum, keyframes.tum, mesh.ply, points.ply, report.png
+    and run.json. Settings: 'slamcli config dump dense'. Exits with 3 when frames had to be
+    skipped.
+
+    Example: [bold]slamcli run dense rgbd_dataset_freiburg1_xyz --out runs/xyz --set voxel_m=0.01[/]
+    """,
+}
+
+
+def _command(pipeline: str) -> Any:
+    def command(
+        input: Annotated[
+            Path, typer.Argument(help="A TUM RGB-D folder or an MCAP log.", show_default=False)
+        ],
+        out: Out,
+        force: Force = False,
+        max_frames: MaxFrames = None,
+        mcap: Mcap = False,
+        config: ConfigFile = None,
+        set_: Sets = None,
+        max_dt: MaxDt = DEFAULTS.max_dt,
+        dt_offset: DtOffset = DEFAULTS.dt_offset,
+        depth_factor: DepthFactor = None,
+        camera: CameraOpt = None,
+        fx: Fx = None,
+        fy: Fy = None,
+        cx: Cx = None,
+        cy: Cy = None,
+        undistort: Undistort = False,
+        strict: Strict = False,
+        rgb_topic: RgbTopic = None,
+        depth_topic: DepthTopic = None,
+        camera_info_topic: CameraInfoTopic = None,
+        gt_topic: GtTopic = None,
+        gt_frame: GtFrame = None,
+        odom_topic: OdomTopic = None,
+    ) -> None:
+        from slamcli.config import load_config
+        from slamcli.pipelines import get_pipeline
+
+        settings = load_config(get_pipeline(pipeline).config_class, pipeline, config, set_ or ())
+        opts = SourceOptions.pick(locals())
+        _run(pipeline, input, out, force, max_frames, mcap, opts, settings)
+
+    command.__doc__ = DOCS[pipeline]
+    return boundary(command)
+
+
+for _name in PIPELINES:
+    run_app.command(_name)(_command(_name))
 
 
 def _run(
@@ -100,6 +145,7 @@ def _run(
     max_frames: int | None,
     mcap: bool,
     opts: SourceOptions,
+    settings: Any,
 ) -> None:
     from slamcli.run import run_pipeline
 
@@ -109,6 +155,7 @@ def _run(
             pipeline,
             out,
             force=force,
+            config=settings,
             source_options=opts.open_kwargs(),
             max_frames=max_frames,
             command=f"run {pipeline}",

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.config import setting
 from slamcli.geometry import compose, inverse, rotation_angle
 from slamcli.types import RgbdFrame, SlamResult, Trajectory
 
@@ -24,15 +25,29 @@ log = logging.getLogger(__name__)
 
 @dataclass(frozen=True)
 class OdometryConfig:
-    """Settings of :class:`RgbdOdometry` (lengths in metres)."""
+    """Settings of :class:`RgbdOdometry`."""
 
-    method: str = "hybrid"
-    depth_max_m: float = 4.0
-    depth_outlier_m: float = 0.07
-    iterations: tuple[int, ...] = (10, 5, 3)
-    min_fitness: float = 0.2
-    max_step_m: float = 0.25
-    max_step_deg: float = 20.0
+    method: str = setting(
+        "hybrid",
+        help="Open3D loss: photometric + geometric, geometric only, or photometric only",
+        choices=("hybrid", "point_to_plane", "intensity"),
+    )
+    depth_max_m: float = setting(4.0, help="ignore depth beyond this", unit="m", gt=0)
+    depth_outlier_m: float = setting(
+        0.07, help="drop correspondences further apart than this", unit="m", gt=0
+    )
+    iterations: tuple[int, ...] = setting(
+        (10, 5, 3), help="iterations per pyramid level, coarse last", min=1
+    )
+    min_fitness: float = setting(
+        0.2, help="fraction of pixels that must correspond to trust a step", min=0, max=1
+    )
+    max_step_m: float = setting(
+        0.25, help="a step this far beyond the motion prior is not trusted", unit="m", gt=0
+    )
+    max_step_deg: float = setting(
+        20.0, help="a turn this far beyond the motion prior is not trusted", unit="deg", gt=0
+    )
 
 
 class RgbdOdometry:

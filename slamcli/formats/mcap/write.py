@@ -58,6 +58,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, ExportError, FormatError, InputError
+from slamcli.formats.mesh import mesh_to_glb, read_mesh, read_points_ply
 from slamcli.rundir import atomic_path
 from slamcli.types import (
     ImuFrame,
@@ -798,25 +799,6 @@ def point_cloud_message(
     }
 
 
-def mesh_to_glb(mesh: TriangleMesh) -> bytes:
-    """A binary glTF of the mesh (trimesh's exporter; vertex colours as ``COLOR_0``)."""
-    import trimesh
-
-    colors = None
-    if mesh.vertex_colors is not None:
-        colors = np.asarray(mesh.vertex_colors, dtype=np.uint8)
-    tm = trimesh.Trimesh(
-        vertices=np.asarray(mesh.vertices, dtype=np.float64),
-        faces=np.asarray(mesh.faces, dtype=np.int64),
-        vertex_colors=colors,
-        process=False,
-    )
-    glb = tm.export(file_type="glb")
-    if not isinstance(glb, bytes):
-        raise ExportError(f"trimesh returned {type(glb).__name__} for a GLB export, not bytes")
-    return glb
-
-
 def mesh_message(mesh: TriangleMesh, stamp_ns: int) -> dict[str, Any]:
     """A ``foxglove.SceneUpdate`` (JSON) with one entity holding the mesh as a GLB model."""
     model = {
@@ -870,9 +852,9 @@ def read_run_result(run_dir: str | Path) -> SlamResult:
     if (run / "map.yaml").is_file():
         result.grid = read_map_yaml(run / "map.yaml")
     if (run / "points.ply").is_file():
-        result.points, result.point_colors = _read_points_ply(run / "points.ply")
+        result.points, result.point_colors = read_points_ply(run / "points.ply")
     if (run / "mesh.ply").is_file():
-        result.mesh = _read_mesh_ply(run / "mesh.ply")
+        result.mesh = read_mesh(run / "mesh.ply")
     return result
 
 
@@ -949,52 +931,3 @@ def read_map_yaml(path: str | Path) -> OccupancyGrid:
         prob = np.where(occ > occupied, 1.0, np.where(occ < free, 0.0, between))
         prob = prob.astype(np.float32)
     return OccupancyGrid(prob, resolution, (x, y, yaw))
-
-
-def _load_ply(path: Path) -> Any:
-    import trimesh
-
-    try:
-        return trimesh.load(str(path), file_type="ply", process=False)
-    except Exception as exc:  # trimesh raises assorted types for malformed files
-        raise FormatError(path, f"cannot be read as PLY ({exc})") from exc
-
-
-def _read_points_ply(path: Path) -> tuple[NDArray[np.float64], NDArray[np.uint8] | None]:
-    """(N, 3) float64 points (m) and (N, 4) uint8 RGBA colours (None without colours)."""
-    import trimesh
-
-    loaded = _load_ply(path)
-    points = np.asarray(loaded.vertices, dtype=np.float64).reshape(-1, 3)
-    colors = None
-    if isinstance(loaded, trimesh.Trimesh):
-        colors = _vertex_colors(loaded)
-    elif isinstance(loaded, trimesh.PointCloud):
-        raw = np.asarray(loaded.colors)
-        if raw.size and len(raw) == len(points):
-            colors = raw.astype(np.uint8)
-    return points, colors
-
-
-def _read_mesh_ply(path: Path) -> TriangleMesh:
-    import trimesh
-
-    loaded = _load_ply(path)
-    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
-        raise FormatError(
-            path, "has no faces; a mesh needs triangles", hint="points belong in points.ply"
-        )
-    colors = _vertex_colors(loaded)
-    return TriangleMesh(
-        np.asarray(loaded.vertices, dtype=np.float64),
-        np.asarray(loaded.faces, dtype=np.int64),
-        colors[:, :3] if colors is not None else None,
-    )
-
-
-def _vertex_colors(mesh: Any) -> NDArray[np.uint8] | None:
-    """(V, 4) uint8 RGBA of a trimesh mesh with per-vertex colours, else None."""
-    visual = mesh.visual
-    if visual is None or visual.kind != "vertex":
-        return None
-    return np.asarray(visual.vertex_colors, dtype=np.uint8)
