@@ -100,7 +100,12 @@ def key_values(title: str | None, items: Mapping[str, Any]) -> None:
 
 
 def written(paths: Sequence[str | Path], title: str = "Written") -> None:
-    table(title, ["file", "bytes"], [[str(p), Path(p).stat().st_size] for p in paths], ["bytes"])
+    """One line per file with its size; paths are never shortened, so they can be copied."""
+    out.print(title)
+    sizes = [str(Path(p).stat().st_size) for p in paths]
+    width = max((len(s) for s in sizes), default=0)
+    for path, size in zip(paths, sizes, strict=True):
+        out.print(f" {size:>{width}} bytes  {escape(str(path))}", soft_wrap=True)
 
 
 @contextlib.contextmanager
