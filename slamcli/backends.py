@@ -38,5 +38,8 @@ def import_open3d() -> ModuleType:
     finally:
         if pinned is not None:
             os.sched_setaffinity(0, pinned)
+    # Open3D's own warnings (e.g. about its ray-cast range maps) go to the console directly and
+    # say nothing a user can act on; slamcli reports what matters itself.
+    open3d.utility.set_verbosity_level(open3d.utility.VerbosityLevel.Error)
     log.debug("Open3D %s loaded with single-threaded kernels", open3d.__version__)
     return open3d

@@ -5,7 +5,10 @@ from __future__ import annotations
 
 from typing import Any
 
-PIPELINES: dict[str, str] = {"odometry": "slamcli.pipelines.odometry:RgbdOdometry"}
+PIPELINES: dict[str, str] = {
+    "odometry": "slamcli.pipelines.odometry:RgbdOdometry",
+    "dense": "slamcli.pipelines.dense:DenseSlam",
+}
 """Pipeline classes by name, as ``module:Class`` so heavy modules load only when used."""
 
 

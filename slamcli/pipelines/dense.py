@@ -1,0 +1,999 @@
+"""Dense RGB-D SLAM: feature-seeded frame-to-model tracking, TSDF fusion and loop closure.
+
+Each frame goes through four stages:
+
+- ``_track``: ORB features of the previous frame with depth, lifted to 3-D, are matched to the
+  current frame and ``cv2.solvePnPRansac`` gives a pose seed (depth-only trackers under-rotate
+  during fast turns; features do not). The seed is refined with Open3D's multi-scale tensor
+  RGB-D odometry against a ray cast of the TSDF volume at the seed pose (frame-to-model). A
+  refinement that throws (``Singular 6x6 linear system``), finds too few correspondences,
+  jumps beyond the constant-velocity prior or disagrees with the feature seed is not trusted:
+  the frame is registered to the previous frame instead, then by features alone, then by
+  relocalisation against the keyframes; a frame with none of these is lost.
+- ``_integrate``: frames with a trusted pose and enough valid depth are fused into an Open3D
+  ``VoxelBlockGrid`` (TSDF, weight, colour).
+- ``_add_keyframe`` / ``_close_loops``: every few frames (or after enough motion) a keyframe is
+  kept; earlier keyframes near it in pose and similar in ORB appearance are verified by PnP
+  followed by RGB-D odometry, and accepted loops become uncertain edges of a pose graph.
+- ``_finish``: the pose graph is optimised with Open3D's line-process global optimisation
+  (which prunes false loops), every frame follows its keyframe's correction, and the volume is
+  rebuilt with the corrected poses before the mesh and points are extracted.
+
+Every frame with a pose goes into the trajectory; every skipped or recovered frame is counted
+by reason in ``SlamResult.counts``. Open3D objects never leave this module.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import defaultdict
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.errors import ConfigError, PipelineError
+from slamcli.geometry import compose, inverse, rotation_angle
+from slamcli.types import PinholeCamera, RgbdFrame, SlamResult, Trajectory, TriangleMesh
+
+log = logging.getLogger(__name__)
+
+F64 = NDArray[np.float64]
+
+_METHODS = ("hybrid", "point_to_plane", "intensity")
+
+
+@dataclass(frozen=True)
+class DenseConfig:
+    """Settings of :class:`DenseSlam`. Lengths in metres, angles in degrees.
+
+    Attributes:
+        voxel_size_m: TSDF voxel edge.
+        block_resolution: voxels per block edge (blocks are ``block_resolution**3`` voxels).
+        block_count: initial voxel-block budget; 0 sizes it from the depth range and the
+            camera's field of view (``block_budget_views`` frames' worth of surface).
+        block_budget_views: how many distinct views' worth of surface the automatic budget holds.
+        depth_min_m, depth_max_m: depth readings outside this range are ignored.
+        sdf_trunc_voxels: TSDF truncation distance in voxels.
+        min_valid_depth_fraction: a frame with a smaller share of valid depth pixels is tracked
+            if possible but never integrated.
+        track_downsample: the frame-to-model registration runs on images shrunk by this
+            integer factor (ray casting costs grow with the pixel count); never below 160
+            pixels wide, where the coarse pyramid levels would have too few pixels.
+        odometry_method: ``hybrid`` (photometric + geometric), ``point_to_plane`` or
+            ``intensity``, for the frame-to-model refinement.
+        odometry_iterations: iterations per pyramid level, coarse to fine.
+        depth_outlier_m: correspondences further apart than this are rejected by the odometry.
+        min_fitness: least share of pixels with a correspondence for a trusted registration.
+        max_jump_m, max_jump_deg: largest deviation from the constant-velocity prediction.
+        max_seed_disagreement_m, max_seed_disagreement_deg: largest difference between the
+            feature seed and the dense refinement before the refinement is distrusted.
+        orb_features: ORB keypoints per frame.
+        match_ratio: Lowe ratio for ORB descriptor matches.
+        pnp_reprojection_px: RANSAC inlier threshold of PnP, pixels.
+        pnp_iterations: RANSAC iterations of PnP.
+        pnp_min_inliers: least PnP inliers for a feature pose.
+        relocalise_keyframes: how many of the latest keyframes relocalisation tries.
+        keyframe_every: frames between keyframes at most.
+        keyframe_min_m, keyframe_min_deg: motion since the last keyframe that makes a new one.
+        loop_min_frames: frames between two keyframes before they may close a loop.
+        loop_max_distance_m, loop_max_angle_deg: pose proximity of loop candidates.
+        loop_min_match_ratio: least share of ORB descriptors with a ratio-test match.
+        loop_max_candidates: candidates verified per keyframe, best appearance first.
+        loop_min_inliers: least PnP inliers for a loop.
+        loop_min_fitness: least RGB-D odometry fitness for a loop.
+        loop_max_disagreement_m, loop_max_disagreement_deg: largest difference between the PnP
+            and the dense estimate of a loop's relative pose.
+        pose_graph_prune: edge-prune threshold of the line process (0..1).
+        pose_graph_max_correspondence_m: correspondence distance of the global optimisation.
+        pose_graph_loop_preference: weight of loop edges against odometry edges.
+        reintegrate_min_shift_m, reintegrate_min_shift_deg: the volume is rebuilt when the
+            optimisation moves any keyframe by more than this.
+        mesh_weight_threshold: least integration weight of voxels in the mesh and points.
+        undistort: remap frames whose camera has lens distortion onto the same pinhole
+            (colour bilinear, depth nearest-neighbour) before anything else; the volume,
+            ray casts and odometry all assume a pinhole camera.
+        seed: seeds OpenCV's RNG (PnP RANSAC).
+    """
+
+    voxel_size_m: float = 0.01
+    block_resolution: int = 16
+    block_count: int = 0
+    block_budget_views: int = 24
+    depth_min_m: float = 0.1
+    depth_max_m: float = 3.0
+    sdf_trunc_voxels: float = 8.0
+    min_valid_depth_fraction: float = 0.2
+    track_downsample: int = 2
+    odometry_method: str = "point_to_plane"
+    odometry_iterations: tuple[int, ...] = (6, 4, 2)
+    depth_outlier_m: float = 0.07
+    min_fitness: float = 0.1
+    max_jump_m: float = 0.15
+    max_jump_deg: float = 15.0
+    max_seed_disagreement_m: float = 0.05
+    max_seed_disagreement_deg: float = 4.0
+    orb_features: int = 1000
+    match_ratio: float = 0.8
+    pnp_reprojection_px: float = 3.0
+    pnp_iterations: int = 200
+    pnp_min_inliers: int = 25
+    relocalise_keyframes: int = 8
+    keyframe_every: int = 10
+    keyframe_min_m: float = 0.1
+    keyframe_min_deg: float = 10.0
+    loop_min_frames: int = 45
+    loop_max_distance_m: float = 1.0
+    loop_max_angle_deg: float = 45.0
+    loop_min_match_ratio: float = 0.08
+    loop_max_candidates: int = 2
+    loop_min_inliers: int = 30
+    loop_min_fitness: float = 0.3
+    loop_max_disagreement_m: float = 0.02
+    loop_max_disagreement_deg: float = 1.5
+    pose_graph_prune: float = 0.25
+    pose_graph_max_correspondence_m: float = 0.03
+    pose_graph_loop_preference: float = 0.1
+    reintegrate_min_shift_m: float = 0.002
+    reintegrate_min_shift_deg: float = 0.1
+    mesh_weight_threshold: float = 3.0
+    undistort: bool = True
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        checks = [
+            ("voxel_size_m", self.voxel_size_m > 0, "> 0"),
+            ("block_resolution", self.block_resolution in (8, 16, 32), "one of 8, 16, 32"),
+            ("block_count", self.block_count >= 0, ">= 0"),
+            ("depth_min_m", 0 <= self.depth_min_m < self.depth_max_m, "in [0, depth_max_m)"),
+            ("sdf_trunc_voxels", self.sdf_trunc_voxels >= 1, ">= 1"),
+            ("track_downsample", self.track_downsample in (1, 2, 4), "one of 1, 2, 4"),
+            ("odometry_method", self.odometry_method in _METHODS, f"one of {_METHODS}"),
+            ("odometry_iterations", len(self.odometry_iterations) >= 1, "at least one level"),
+            ("keyframe_every", self.keyframe_every >= 1, ">= 1"),
+            ("min_fitness", 0 <= self.min_fitness <= 1, "in [0, 1]"),
+        ]
+        for key, ok, allowed in checks:
+            if not ok:
+                raise ConfigError(
+                    f"dense.{key}: expected {allowed}, got {getattr(self, key)!r}",
+                    hint=f"set dense.{key} to a value {allowed}",
+                )
+
+
+@dataclass
+class _Frame:
+    """One input frame, prepared for tracking.
+
+    Attributes:
+        index: position in the input (0-based).
+        stamp_ns: colour stamp.
+        rgb: (H, W, 3) uint8.
+        depth: (H, W) float32 metres, 0 where invalid or outside the depth range.
+        valid_fraction: share of pixels with valid depth.
+        keypoints: (M, 2) float32 ORB keypoint pixels.
+        descriptors: (M, 32) uint8 ORB descriptors (M may be 0).
+        points_cam: (M, 3) float64 keypoints lifted with depth, camera frame; NaN rows where
+            the depth is invalid.
+        small: Open3D RGB-D image at the tracking scale (colour float32 in [0, 1]).
+    """
+
+    index: int
+    stamp_ns: int
+    rgb: NDArray[np.uint8]
+    depth: NDArray[np.float32]
+    valid_fraction: float
+    keypoints: NDArray[np.float32]
+    descriptors: NDArray[np.uint8]
+    points_cam: F64
+    small: Any
+
+
+@dataclass
+class _Keyframe:
+    """A keyframe: the frame and its pose when it was made (world_from_cam (4, 4))."""
+
+    id: int
+    frame: _Frame
+    world_from_cam: F64
+
+
+@dataclass
+class _Loop:
+    """A verified loop: ``cand_from_cur`` (4, 4) maps keyframe ``cur`` into keyframe ``cand``."""
+
+    cand: int
+    cur: int
+    cand_from_cur: F64
+    information: F64
+    record: dict[str, Any] = field(default_factory=dict)
+
+
+class DenseSlam:
+    """Pipeline ``dense``: consumes ``rgbd`` frames, produces poses, a mesh and points."""
+
+    name = "dense"
+    consumes = ("rgbd",)
+    config_class = DenseConfig
+
+    def __init__(self, config: DenseConfig | None = None) -> None:
+        self.config = config or DenseConfig()
+        self._camera: PinholeCamera | None = None
+        self._raw_camera: PinholeCamera | None = None
+        self._undistort_maps: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
+        self._downsample = 1
+        self._pnp_inliers = 0
+        self._o3d: Any = None
+        self._volume: _Volume | None = None
+        self._stamps: list[int] = []
+        self._poses: list[F64] = []
+        self._frame_of_pose: list[int] = []
+        self._previous_pose: F64 | None = None
+        self._velocity = np.eye(4)
+        self._reference: _Frame | None = None
+        self._reference_pose = np.eye(4)
+        self._keyframes: list[_Keyframe] = []
+        self._loops: list[_Loop] = []
+        self._loop_records: list[dict[str, Any]] = []
+        # Integrated frames, depth in 1/5000 m steps (uint16): kept to rebuild the volume after
+        # loop closure. About 1.5 MB per 640x480 frame.
+        self._integrated: list[tuple[int, NDArray[np.uint16], NDArray[np.uint8]]] = []
+        self._counts: dict[str, int] = defaultdict(int)
+        self._ms: dict[str, float] = defaultdict(float)
+        self._frames = 0
+        self._best_valid_fraction = 0.0
+
+    # -- the pipeline -------------------------------------------------------------------------
+
+    def process(self, frame: RgbdFrame) -> None:
+        """Track, integrate and maybe keyframe one RGB-D frame."""
+        # Stage timers nest (the ray cast is part of tracking), so the total is timed on its own.
+        with self._timed("total"):
+            self._process(frame)
+
+    def _process(self, frame: RgbdFrame) -> None:
+        with self._timed("prepare"):
+            cur = self._prepare(frame)
+        self._frames += 1
+        pose, status = self._track(cur)
+        self._counts[status] += 1
+        if pose is None:
+            self._counts["frames_lost"] += 1
+            if self._previous_pose is not None:
+                self._previous_pose = compose(self._previous_pose, self._velocity)
+            return
+        if self._previous_pose is not None:
+            self._velocity = compose(inverse(self._previous_pose), pose)
+        self._previous_pose = pose
+        self._stamps.append(cur.stamp_ns)
+        self._poses.append(pose)
+        self._frame_of_pose.append(cur.index)
+        self._counts["frames_tracked"] += 1
+        trusted = status in ("tracked_model", "tracked_first", "recovered_f2f")
+        depth_ok = cur.valid_fraction >= self.config.min_valid_depth_fraction
+        if not depth_ok:
+            self._counts["frames_not_integrated_depth"] += 1
+        elif not trusted:
+            self._counts["frames_not_integrated_untrusted"] += 1
+        if trusted and depth_ok:
+            with self._timed("integrate"):
+                self._integrate(cur, pose)
+            self._reference, self._reference_pose = cur, pose
+            if self._wants_keyframe(cur, pose):
+                with self._timed("loop"):
+                    self._add_keyframe(cur, pose)
+
+    def finish(self) -> SlamResult:
+        """Optimise the pose graph, rebuild the volume and extract the mesh and points.
+
+        Raises:
+            PipelineError: no frame was read, or none had enough valid depth to build a map.
+        """
+        if self._frames == 0:
+            raise PipelineError("the dense pipeline received no RGB-D frames")
+        if self._volume is None:
+            raise PipelineError(
+                f"none of the {self._frames} frames had usable depth: at best "
+                f"{100 * self._best_valid_fraction:.1f}% of the pixels read between "
+                f"{self.config.depth_min_m} and {self.config.depth_max_m} m (need "
+                f"{100 * self.config.min_valid_depth_fraction:.0f}%)",
+                hint="check the depth stream and its depth factor (TUM: 5000 units per metre), "
+                "or widen dense.depth_min_m / dense.depth_max_m",
+            )
+        finish_start = time.perf_counter()
+        with self._timed("optimise"):
+            corrections = self._optimise()
+        if corrections is not None:
+            with self._timed("reintegrate"):
+                self._apply_corrections(corrections)
+        with self._timed("extract"):
+            mesh, points, colors = self._volume.extract(self.config.mesh_weight_threshold)
+        trajectory = Trajectory(np.array(self._stamps, dtype=np.int64), np.stack(self._poses))
+        keyframes = Trajectory(
+            np.array([k.frame.stamp_ns for k in self._keyframes], dtype=np.int64),
+            np.stack([k.world_from_cam for k in self._keyframes]).reshape(-1, 4, 4),
+        )
+        counts = dict(self._counts)
+        counts.setdefault("frames_lost", 0)
+        counts["keyframes"] = len(self._keyframes)
+        counts["frames_integrated"] = len(self._integrated)
+        counts["loop_closures_accepted"] = sum(r["accepted"] for r in self._loop_records)
+        counts["loop_closures_rejected"] = sum(not r["accepted"] for r in self._loop_records)
+        counts["voxel_blocks"] = self._volume.size
+        counts["voxel_block_budget"] = self._volume.budget
+        self._ms["total"] += (time.perf_counter() - finish_start) * 1e3
+        stages = {k: v / self._frames for k, v in sorted(self._ms.items())}
+        return SlamResult(
+            trajectory=trajectory,
+            keyframes=keyframes,
+            points=points,
+            point_colors=colors,
+            mesh=mesh,
+            metrics={
+                "ms_per_frame": stages,
+                "loop_closures": self._loop_records,
+                "config": asdict(self.config),
+            },
+            counts=counts,
+        )
+
+    # -- stages -------------------------------------------------------------------------------
+
+    def _prepare(self, frame: RgbdFrame) -> _Frame:
+        """Check and clean the images, extract ORB features and build the tracking image."""
+        import cv2
+
+        cam = frame.camera
+        h, w = frame.depth_m.shape[:2]
+        if frame.rgb.shape[:2] != (h, w) or (cam.height, cam.width) != (h, w):
+            raise PipelineError(
+                f"frame {frame.name or frame.stamp_ns}: colour {frame.rgb.shape[1]}x"
+                f"{frame.rgb.shape[0]}, depth {w}x{h} and camera {cam.width}x{cam.height} "
+                "must agree",
+                hint="give the camera calibration that matches the images",
+            )
+        cfg = self.config
+        if self._raw_camera is None:
+            self._raw_camera = cam
+            self._o3d = _open3d()
+            if cfg.undistort and cam.is_distorted:
+                mx, my = cv2.initUndistortRectifyMap(
+                    cam.K, np.array(cam.distortion), None, cam.K, (w, h), cv2.CV_32FC1
+                )
+                self._undistort_maps = (
+                    np.asarray(mx, dtype=np.float32),
+                    np.asarray(my, dtype=np.float32),
+                )
+                self._camera = cam.undistorted()
+            else:
+                self._camera = cam
+            self._downsample = max(
+                1, min(cfg.track_downsample, 2 ** int(math.log2(max(1, w // 160))))
+            )
+        elif cam != self._raw_camera:
+            raise PipelineError(
+                f"frame {frame.name or frame.stamp_ns}: the camera changed mid-sequence",
+                hint="the dense pipeline needs one fixed camera",
+            )
+        camera = self._camera
+        assert camera is not None
+        depth = np.nan_to_num(np.asarray(frame.depth_m, dtype=np.float32), nan=0.0, posinf=0.0)
+        rgb = np.ascontiguousarray(frame.rgb, dtype=np.uint8)
+        if self._undistort_maps is not None:
+            mx, my = self._undistort_maps
+            rgb = np.asarray(
+                cv2.remap(rgb, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT),
+                dtype=np.uint8,
+            )
+            # Nearest sampling never blends a foreground and a background depth across an edge.
+            depth = np.asarray(
+                cv2.remap(depth, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT),
+                dtype=np.float32,
+            )
+        depth[(depth < cfg.depth_min_m) | (depth > cfg.depth_max_m)] = 0.0
+        valid_fraction = float(np.count_nonzero(depth)) / depth.size
+        self._best_valid_fraction = max(self._best_valid_fraction, valid_fraction)
+        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+        orb = cv2.ORB.create(nfeatures=cfg.orb_features)
+        kps, found = orb.detectAndCompute(gray, None)
+        keypoints = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 2)
+        desc = np.zeros((0, 32), dtype=np.uint8) if found is None else np.asarray(found, np.uint8)
+        return _Frame(
+            index=self._frames,
+            stamp_ns=frame.stamp_ns,
+            rgb=rgb,
+            depth=depth,
+            valid_fraction=valid_fraction,
+            keypoints=keypoints,
+            descriptors=desc,
+            points_cam=_lift(keypoints, depth, camera),
+            small=self._tracking_image(rgb, depth),
+        )
+
+    def _track(self, cur: _Frame) -> tuple[F64 | None, str]:
+        """World-from-camera pose of ``cur`` (or None when lost) and how it was found."""
+        cfg = self.config
+        if self._previous_pose is None:
+            return np.eye(4), "tracked_first"
+        predicted = compose(self._previous_pose, self._velocity)
+        seed_pose = None
+        if self._reference is not None:
+            with self._timed("features"):
+                ref_from_cur = self._pnp(self._reference, cur, cfg.pnp_min_inliers)
+            if ref_from_cur is not None:
+                seed_pose = compose(self._reference_pose, ref_from_cur)
+                if not self._plausible(seed_pose, predicted):
+                    self._counts["pnp_rejected_jump"] += 1
+                    seed_pose = None
+        depth_ok = cur.valid_fraction >= cfg.min_valid_depth_fraction
+        start = predicted if seed_pose is None else seed_pose
+        if depth_ok and self._volume is not None:
+            with self._timed("track_model"):
+                refined = self._refine_model(cur, start)
+            if refined is not None and self._accept(refined, predicted, seed_pose):
+                return refined, "tracked_model"
+            if self._reference is not None:
+                with self._timed("track_f2f"):
+                    refined = self._refine_f2f(cur, start)
+                if refined is not None and self._accept(refined, predicted, seed_pose):
+                    return refined, "recovered_f2f"
+        if seed_pose is not None:
+            return seed_pose, "recovered_pnp"
+        with self._timed("relocalise"):
+            relocalised = self._relocalise(cur)
+        if relocalised is not None:
+            return relocalised, "recovered_relocalised"
+        return None, "lost_no_registration"
+
+    def _integrate(self, cur: _Frame, pose: F64) -> None:
+        """Fuse a trusted frame into the volume and keep it for a later rebuild."""
+        if self._volume is None:
+            assert self._camera is not None
+            self._volume = _Volume(self._o3d, self.config, self._camera)
+        self._volume.integrate(cur.depth, cur.rgb, pose)
+        depth_u16 = np.rint(cur.depth * _DEPTH_STEPS_PER_M).astype(np.uint16)
+        self._integrated.append((len(self._poses) - 1, depth_u16, cur.rgb))
+
+    def _wants_keyframe(self, cur: _Frame, pose: F64) -> bool:
+        if not self._keyframes:
+            return True
+        last = self._keyframes[-1]
+        if cur.index - last.frame.index >= self.config.keyframe_every:
+            return True
+        rel = compose(inverse(last.world_from_cam), pose)
+        return bool(
+            np.linalg.norm(rel[:3, 3]) >= self.config.keyframe_min_m
+            or math.degrees(rotation_angle(rel)) >= self.config.keyframe_min_deg
+        )
+
+    def _add_keyframe(self, cur: _Frame, pose: F64) -> None:
+        kf = _Keyframe(len(self._keyframes), cur, pose.copy())
+        self._keyframes.append(kf)
+        self._close_loops(kf)
+
+    def _close_loops(self, kf: _Keyframe) -> None:
+        """Find, verify and record loop closures between ``kf`` and earlier keyframes."""
+        cfg = self.config
+        candidates = []
+        for old in self._keyframes[:-1]:
+            if kf.frame.index - old.frame.index < cfg.loop_min_frames:
+                continue
+            rel = compose(inverse(old.world_from_cam), kf.world_from_cam)
+            if (
+                np.linalg.norm(rel[:3, 3]) > cfg.loop_max_distance_m
+                or math.degrees(rotation_angle(rel)) > cfg.loop_max_angle_deg
+            ):
+                continue
+            matches = _match(old.frame.descriptors, kf.frame.descriptors, cfg.match_ratio)
+            ratio = len(matches) / max(
+                1, min(len(old.frame.descriptors), len(kf.frame.descriptors))
+            )
+            if ratio >= cfg.loop_min_match_ratio:
+                candidates.append((-ratio, old.id, old))
+        candidates.sort(key=lambda c: (c[0], c[1]))
+        for neg_ratio, _, old in candidates[: cfg.loop_max_candidates]:
+            record = self._verify_loop(old, kf, -neg_ratio)
+            self._loop_records.append(record)
+            if record["accepted"]:
+                log.info(
+                    "loop closure: keyframe %d (frame %d) -> %d (frame %d), fitness %.2f",
+                    kf.id,
+                    kf.frame.index,
+                    old.id,
+                    old.frame.index,
+                    record["fitness"],
+                )
+
+    def _optimise(self) -> F64 | None:
+        """Optimise the keyframe pose graph; (K, 4, 4) corrected keyframe poses, or None when
+        no loop survived or nothing moved enough to matter."""
+        if not self._loops:
+            return None
+        o3d = self._o3d
+        reg = o3d.pipelines.registration
+        graph = reg.PoseGraph()
+        for kf in self._keyframes:
+            graph.nodes.append(reg.PoseGraphNode(kf.world_from_cam))
+        for a, b in zip(self._keyframes[:-1], self._keyframes[1:], strict=True):
+            a_from_b = compose(inverse(a.world_from_cam), b.world_from_cam)
+            info = self._information(b.frame, a.frame, a_from_b)
+            graph.edges.append(reg.PoseGraphEdge(b.id, a.id, a_from_b, info, uncertain=False))
+        for loop in self._loops:
+            graph.edges.append(
+                reg.PoseGraphEdge(
+                    loop.cur, loop.cand, loop.cand_from_cur, loop.information, uncertain=True
+                )
+            )
+        option = reg.GlobalOptimizationOption(
+            max_correspondence_distance=self.config.pose_graph_max_correspondence_m,
+            edge_prune_threshold=self.config.pose_graph_prune,
+            preference_loop_closure=self.config.pose_graph_loop_preference,
+            reference_node=0,
+        )
+        reg.global_optimization(
+            graph,
+            reg.GlobalOptimizationLevenbergMarquardt(),
+            reg.GlobalOptimizationConvergenceCriteria(),
+            option,
+        )
+        kept = {(e.source_node_id, e.target_node_id) for e in graph.edges if e.uncertain}
+        for loop in self._loops:
+            if (loop.cur, loop.cand) not in kept:
+                loop.record["accepted"] = False
+                loop.record["reason"] = "pruned by the pose-graph optimisation"
+        if not kept:
+            return None
+        corrected = np.stack([np.asarray(n.pose, dtype=np.float64) for n in graph.nodes])
+        old = np.stack([k.world_from_cam for k in self._keyframes])
+        shift = compose(inverse(old), corrected)
+        moved_m = float(np.max(np.linalg.norm(shift[:, :3, 3], axis=1)))
+        moved_deg = float(np.degrees(np.max(rotation_angle(shift))))
+        log.info("pose graph moved keyframes by up to %.4f m, %.3f deg", moved_m, moved_deg)
+        if (
+            moved_m < self.config.reintegrate_min_shift_m
+            and moved_deg < self.config.reintegrate_min_shift_deg
+        ):
+            return None
+        return corrected
+
+    def _apply_corrections(self, corrected: F64) -> None:
+        """Move every pose with its keyframe's correction and rebuild the volume."""
+        old = np.stack([k.world_from_cam for k in self._keyframes])
+        # Each pose follows the latest keyframe at or before it.
+        kf_frames = np.array([k.frame.index for k in self._keyframes])
+        owner = np.clip(np.searchsorted(kf_frames, self._frame_of_pose, side="right") - 1, 0, None)
+        delta = compose(corrected, inverse(old))
+        self._poses = list(compose(delta[owner], np.stack(self._poses)))
+        for kf, pose in zip(self._keyframes, corrected, strict=True):
+            kf.world_from_cam = pose
+        assert self._camera is not None
+        volume = _Volume(self._o3d, self.config, self._camera)
+        for pose_index, depth_u16, rgb in self._integrated:
+            depth = depth_u16.astype(np.float32) / np.float32(_DEPTH_STEPS_PER_M)
+            volume.integrate(depth, rgb, self._poses[pose_index])
+        self._volume = volume
+        self._counts["frames_reintegrated"] = len(self._integrated)
+
+    # -- registration ------------------------------------------------------------------------
+
+    def _pnp(self, ref: _Frame, cur: _Frame, min_inliers: int) -> F64 | None:
+        """``ref_from_cur`` (4, 4) from ORB matches and PnP RANSAC, or None.
+
+        The inlier count of the last attempt is left in ``self._pnp_inliers``.
+        """
+        self._pnp_inliers = 0
+        import cv2
+
+        assert self._camera is not None
+        usable = np.isfinite(ref.points_cam[:, 0])
+        if np.count_nonzero(usable) < min_inliers or len(cur.descriptors) < min_inliers:
+            return None
+        idx = np.flatnonzero(usable)
+        matches = _match(ref.descriptors[idx], cur.descriptors, self.config.match_ratio)
+        if len(matches) < min_inliers:
+            return None
+        obj = ref.points_cam[idx[matches[:, 0]]]
+        img = cur.keypoints[matches[:, 1]].astype(np.float64)
+        cv2.setRNGSeed(self.config.seed)
+        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
+            obj,
+            img,
+            self._camera.K,
+            None,
+            iterationsCount=self.config.pnp_iterations,
+            reprojectionError=self.config.pnp_reprojection_px,
+            confidence=0.999,
+            flags=cv2.SOLVEPNP_EPNP,
+        )
+        if not ok or inliers is None or len(inliers) < min_inliers:
+            self._pnp_inliers = 0 if inliers is None else len(inliers)
+            return None
+        inl = inliers.reshape(-1)
+        self._pnp_inliers = len(inl)
+        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], self._camera.K, None, rvec, tvec)
+        cur_from_ref = np.eye(4)
+        cur_from_ref[:3, :3] = cv2.Rodrigues(rvec)[0]
+        cur_from_ref[:3, 3] = tvec.reshape(3)
+        return inverse(cur_from_ref)
+
+    def _refine_model(self, cur: _Frame, seed_pose: F64) -> F64 | None:
+        """Register ``cur`` to a ray cast of the volume seen from ``seed_pose``."""
+        assert self._volume is not None
+        with self._timed("raycast"):
+            model = self._volume.ray_cast(seed_pose, self._downsample)
+        if model is None:
+            return None
+        model_from_cur = self._odometry(cur.small, model, np.eye(4), self._method())
+        return None if model_from_cur is None else compose(seed_pose, model_from_cur)
+
+    def _refine_f2f(self, cur: _Frame, seed_pose: F64) -> F64 | None:
+        """Register ``cur`` to the previous frame with depth (photometric + geometric)."""
+        assert self._reference is not None
+        init = compose(inverse(self._reference_pose), seed_pose)
+        o3d_hybrid = self._o3d.t.pipelines.odometry.Method.Hybrid
+        ref_from_cur = self._odometry(cur.small, self._reference.small, init, o3d_hybrid)
+        return None if ref_from_cur is None else compose(self._reference_pose, ref_from_cur)
+
+    def _odometry(self, source: Any, target: Any, init: F64, method: Any) -> F64 | None:
+        """``target_from_source`` (4, 4) by multi-scale RGB-D odometry, or None on failure."""
+        odo = self._o3d.t.pipelines.odometry
+        cfg = self.config
+        try:
+            result = odo.rgbd_odometry_multi_scale(
+                source,
+                target,
+                self._small_intrinsics(),
+                self._o3d.core.Tensor(np.ascontiguousarray(init)),
+                1.0,
+                cfg.depth_max_m,
+                [odo.OdometryConvergenceCriteria(n) for n in cfg.odometry_iterations],
+                method,
+                odo.OdometryLossParams(cfg.depth_outlier_m),
+            )
+        except RuntimeError as exc:
+            # Open3D reports a degenerate system ("Singular 6x6 linear system") this way.
+            self._counts["odometry_singular"] += 1
+            log.debug("RGB-D odometry failed: %s", exc)
+            return None
+        if result.fitness < cfg.min_fitness:
+            self._counts["odometry_low_fitness"] += 1
+            return None
+        return np.asarray(result.transformation.numpy(), dtype=np.float64)
+
+    def _accept(self, pose: F64, predicted: F64, seed_pose: F64 | None) -> bool:
+        """A refined pose is trusted when it stays within the motion prior and, when there is
+        a feature seed, close to it."""
+        if not self._plausible(pose, predicted):
+            self._counts["rejected_jump"] += 1
+            return False
+        if seed_pose is not None:
+            diff = compose(inverse(seed_pose), pose)
+            if (
+                np.linalg.norm(diff[:3, 3]) > self.config.max_seed_disagreement_m
+                or math.degrees(rotation_angle(diff)) > self.config.max_seed_disagreement_deg
+            ):
+                self._counts["rejected_seed_disagreement"] += 1
+                return False
+        return True
+
+    def _plausible(self, pose: F64, predicted: F64) -> bool:
+        jump = compose(inverse(predicted), pose)
+        return bool(
+            np.linalg.norm(jump[:3, 3]) <= self.config.max_jump_m
+            and math.degrees(rotation_angle(jump)) <= self.config.max_jump_deg
+        )
+
+    def _relocalise(self, cur: _Frame) -> F64 | None:
+        """Pose from PnP against the latest keyframes, most inliers first; None if none fits."""
+        for kf in reversed(self._keyframes[-self.config.relocalise_keyframes :]):
+            kf_from_cur = self._pnp(kf.frame, cur, self.config.pnp_min_inliers)
+            if kf_from_cur is not None:
+                return compose(kf.world_from_cam, kf_from_cur)
+        return None
+
+    def _verify_loop(self, old: _Keyframe, kf: _Keyframe, ratio: float) -> dict[str, Any]:
+        """Check a loop candidate by PnP, then RGB-D odometry; accepted loops are kept."""
+        cfg = self.config
+        record: dict[str, Any] = {
+            "keyframes": [old.id, kf.id],
+            "frames": [old.frame.index, kf.frame.index],
+            "match_ratio": round(ratio, 4),
+            "inliers": 0,
+            "fitness": 0.0,
+            "accepted": False,
+            "reason": "",
+        }
+        old_from_cur = self._pnp(old.frame, kf.frame, cfg.loop_min_inliers)
+        record["inliers"] = self._pnp_inliers
+        if old_from_cur is None:
+            record["reason"] = f"fewer than {cfg.loop_min_inliers} PnP inliers"
+            return record
+        odo = self._o3d.t.pipelines.odometry
+        assert self._camera is not None
+        try:
+            result = odo.rgbd_odometry_multi_scale(
+                self._full_image(kf.frame),
+                self._full_image(old.frame),
+                self._o3d.core.Tensor(self._camera.K),
+                self._o3d.core.Tensor(old_from_cur),
+                1.0,
+                cfg.depth_max_m,
+                [odo.OdometryConvergenceCriteria(n) for n in cfg.odometry_iterations],
+                odo.Method.Hybrid,
+                odo.OdometryLossParams(cfg.depth_outlier_m),
+            )
+        except RuntimeError as exc:
+            record["reason"] = f"RGB-D odometry failed: {exc}".splitlines()[0][:120]
+            return record
+        refined = np.asarray(result.transformation.numpy(), dtype=np.float64)
+        record["fitness"] = round(float(result.fitness), 4)
+        diff = compose(inverse(old_from_cur), refined)
+        record["pnp_vs_dense_m"] = round(float(np.linalg.norm(diff[:3, 3])), 5)
+        drift = compose(inverse(compose(old.world_from_cam, refined)), kf.world_from_cam)
+        record["drift_m"] = round(float(np.linalg.norm(drift[:3, 3])), 5)
+        record["drift_deg"] = round(math.degrees(rotation_angle(drift)), 4)
+        if result.fitness < cfg.loop_min_fitness:
+            record["reason"] = f"fitness below {cfg.loop_min_fitness}"
+        elif (
+            np.linalg.norm(diff[:3, 3]) > cfg.loop_max_disagreement_m
+            or math.degrees(rotation_angle(diff)) > cfg.loop_max_disagreement_deg
+        ):
+            record["reason"] = "PnP and RGB-D odometry disagree"
+        else:
+            record["accepted"] = True
+            record["reason"] = "verified"
+            info = self._information(kf.frame, old.frame, refined)
+            self._loops.append(_Loop(old.id, kf.id, refined, info, record))
+        return record
+
+    def _information(self, source: _Frame, target: _Frame, target_from_source: F64) -> F64:
+        """(6, 6) information of a relative pose from the depth correspondences it explains."""
+        odo = self._o3d.t.pipelines.odometry
+        info = odo.compute_odometry_information_matrix(
+            source.small.depth,
+            target.small.depth,
+            self._small_intrinsics(),
+            self._o3d.core.Tensor(np.ascontiguousarray(target_from_source)),
+            self.config.depth_outlier_m,
+            1.0,
+            self.config.depth_max_m,
+        )
+        return np.asarray(info.numpy(), dtype=np.float64)
+
+    # -- helpers ------------------------------------------------------------------------------
+
+    def _method(self) -> Any:
+        odo = self._o3d.t.pipelines.odometry
+        return {
+            "hybrid": odo.Method.Hybrid,
+            "point_to_plane": odo.Method.PointToPlane,
+            "intensity": odo.Method.Intensity,
+        }[self.config.odometry_method]
+
+    def _full_image(self, frame: _Frame) -> Any:
+        """Open3D RGB-D image of a frame at full resolution (colour float32 in [0, 1])."""
+        geometry = self._o3d.t.geometry
+        colour = frame.rgb.astype(np.float32) / np.float32(255.0)
+        return geometry.RGBDImage(geometry.Image(colour), geometry.Image(frame.depth))
+
+    def _small_intrinsics(self) -> Any:
+        assert self._camera is not None
+        return self._o3d.core.Tensor(_tracking_camera(self._camera, self._downsample).K)
+
+    def _tracking_image(self, rgb: NDArray[np.uint8], depth: NDArray[np.float32]) -> Any:
+        """Open3D RGB-D image shrunk by ``track_downsample``: colour by area averaging, depth
+        by averaging only blocks whose readings are all valid and agree within 3 cm."""
+        import cv2
+
+        o3d = self._o3d
+        k = self._downsample
+        assert self._camera is not None
+        small_cam = _tracking_camera(self._camera, k)
+        hs, ws = small_cam.height, small_cam.width
+        colour = rgb[: hs * k, : ws * k].astype(np.float32) / np.float32(255.0)
+        blocks = depth[: hs * k, : ws * k].reshape(hs, k, ws, k)
+        if k > 1:
+            colour = cv2.resize(colour, (ws, hs), interpolation=cv2.INTER_AREA)
+            lo, hi = blocks.min(axis=(1, 3)), blocks.max(axis=(1, 3))
+            small = np.where((lo > 0) & (hi - lo < 0.03), blocks.mean(axis=(1, 3)), 0.0)
+        else:
+            small = blocks[:, 0, :, 0]
+        return o3d.t.geometry.RGBDImage(
+            o3d.t.geometry.Image(np.ascontiguousarray(colour)),
+            o3d.t.geometry.Image(np.ascontiguousarray(small, dtype=np.float32)),
+        )
+
+    def _timed(self, stage: str) -> _Timer:
+        return _Timer(self._ms, stage)
+
+
+_DEPTH_STEPS_PER_M = 5000.0
+
+
+class _Timer:
+    """Adds the milliseconds spent in a ``with`` block to ``totals[stage]``."""
+
+    def __init__(self, totals: dict[str, float], stage: str) -> None:
+        self._totals, self._stage = totals, stage
+
+    def __enter__(self) -> None:
+        self._start = time.perf_counter()
+
+    def __exit__(self, *exc: object) -> None:
+        self._totals[self._stage] += (time.perf_counter() - self._start) * 1e3
+
+
+class _Volume:
+    """An Open3D ``VoxelBlockGrid`` TSDF with colour and its block budget."""
+
+    def __init__(self, o3d: Any, config: DenseConfig, camera: PinholeCamera) -> None:
+        self._o3d = o3d
+        self._cfg = config
+        self._camera = camera
+        # Open3D's TSDF integration reads the depth pixel by truncating the voxel's projected
+        # coordinate, while its ray cast shoots rays through pixel centres: without this half
+        # pixel the model sits half a pixel off, and frame-to-model tracking drifts by that
+        # much every frame.
+        k_integrate = camera.K.copy()
+        k_integrate[:2, 2] += 0.5
+        self._K = o3d.core.Tensor(k_integrate)
+        self.budget = config.block_count or _block_budget(config, camera)
+        self._grid = o3d.t.geometry.VoxelBlockGrid(
+            ("tsdf", "weight", "color"),
+            (o3d.core.float32, o3d.core.float32, o3d.core.float32),
+            ((1), (1), (3)),
+            config.voxel_size_m,
+            config.block_resolution,
+            self.budget,
+        )
+        self._integrated = 0
+        self._warned = False
+        self._last_blocks: Any = None
+
+    @property
+    def size(self) -> int:
+        """Number of allocated voxel blocks."""
+        return int(self._grid.hashmap().size())
+
+    def integrate(self, depth: NDArray[np.float32], rgb: NDArray[np.uint8], pose: F64) -> None:
+        """Fuse depth (H, W) metres and colour (H, W, 3) seen from world_from_cam ``pose``."""
+        o3d, cfg = self._o3d, self._cfg
+        depth_img = o3d.t.geometry.Image(np.ascontiguousarray(depth))
+        colour = o3d.t.geometry.Image(np.ascontiguousarray(rgb, dtype=np.float32) / 255.0)
+        extrinsic = o3d.core.Tensor(np.ascontiguousarray(inverse(pose)))
+        blocks = self._grid.compute_unique_block_coordinates(
+            depth_img, self._K, extrinsic, 1.0, cfg.depth_max_m, cfg.sdf_trunc_voxels
+        )
+        if not self._warned and self.size + len(blocks) > 0.9 * self.budget:
+            self._warned = True
+            log.warning(
+                "the TSDF volume nears its budget of %d voxel blocks (%d used): raise "
+                "dense.block_count or dense.voxel_size_m",
+                self.budget,
+                self.size,
+            )
+        self._grid.integrate(
+            blocks,
+            depth_img,
+            colour,
+            self._K,
+            extrinsic,
+            1.0,
+            cfg.depth_max_m,
+            cfg.sdf_trunc_voxels,
+        )
+        self._last_blocks = blocks
+        self._integrated += 1
+
+    def ray_cast(self, pose: F64, downsample: int) -> Any:
+        """Model RGB-D image (depth metres, colour in [0, 1]) seen from ``pose`` at the
+        tracking scale, or None when the volume shows nothing there."""
+        o3d, cfg = self._o3d, self._cfg
+        cam = _tracking_camera(self._camera, downsample)
+        extrinsic = o3d.core.Tensor(np.ascontiguousarray(inverse(pose)))
+        # A fresh volume has weight 1 per fused frame; the threshold grows to 3 as frames arrive.
+        weight = float(min(self._integrated, 3))
+        result = self._grid.ray_cast(
+            self._last_blocks,
+            o3d.core.Tensor(cam.K),
+            extrinsic,
+            cam.width,
+            cam.height,
+            ["depth", "color"],
+            1.0,
+            cfg.depth_min_m,
+            cfg.depth_max_m,
+            weight,
+            cfg.sdf_trunc_voxels,
+        )
+        depth = result["depth"]
+        if int(np.count_nonzero(depth.numpy())) == 0:
+            return None
+        return o3d.t.geometry.RGBDImage(
+            o3d.t.geometry.Image(result["color"]), o3d.t.geometry.Image(depth)
+        )
+
+    def extract(
+        self, weight_threshold: float
+    ) -> tuple[TriangleMesh, NDArray[np.float64], NDArray[np.uint8]]:
+        """Marching-cubes mesh and surface points (N, 3) metres with colours (N, 3) uint8."""
+        weight = min(weight_threshold, float(self._integrated))
+        mesh = self._grid.extract_triangle_mesh(weight)
+        vertices = mesh.vertex.positions.numpy().astype(np.float64)
+        faces = mesh.triangle.indices.numpy().astype(np.int64).reshape(-1, 3)
+        colours = _to_uint8(mesh.vertex.colors.numpy()) if "colors" in mesh.vertex else None
+        cloud = self._grid.extract_point_cloud(weight)
+        points = cloud.point.positions.numpy().astype(np.float64)
+        point_colours = (
+            _to_uint8(cloud.point.colors.numpy())
+            if "colors" in cloud.point
+            else np.zeros((len(points), 3), dtype=np.uint8)
+        )
+        return TriangleMesh(vertices, faces, colours), points, point_colours
+
+
+def _tracking_camera(camera: PinholeCamera, downsample: int) -> PinholeCamera:
+    """The camera of the tracking images: shrunk by ``downsample`` and cropped at the right and
+    bottom to whole multiples of 8 pixels (Open3D's ray cast never returns otherwise: its range
+    map works in 8x8 tiles)."""
+    small = camera.scaled(1.0 / downsample)
+    width = camera.width // downsample // _RANGE_TILE * _RANGE_TILE
+    height = camera.height // downsample // _RANGE_TILE * _RANGE_TILE
+    return replace(small, width=width, height=height)
+
+
+_RANGE_TILE = 8
+
+
+def _block_budget(config: DenseConfig, camera: PinholeCamera) -> int:
+    """Voxel blocks for ``block_budget_views`` views of a wall at the far depth limit.
+
+    One view of a surface at depth ``z`` covers ``(W z / fx) (H z / fy)`` square metres, a
+    block band ``block_edge + 2 * truncation`` thick around it.
+    """
+    block = config.voxel_size_m * config.block_resolution
+    z = config.depth_max_m
+    area = (camera.width * z / camera.fx) * (camera.height * z / camera.fy)
+    thickness = 1.0 + 2.0 * config.sdf_trunc_voxels * config.voxel_size_m / block
+    per_view = area / block**2 * thickness
+    return max(1000, math.ceil(per_view * config.block_budget_views))
+
+
+def _to_uint8(colours: NDArray[Any]) -> NDArray[np.uint8]:
+    return np.asarray(np.clip(np.rint(colours * 255.0), 0, 255), dtype=np.uint8)
+
+
+def _lift(keypoints: NDArray[np.float32], depth: NDArray[np.float32], cam: PinholeCamera) -> F64:
+    """(M, 3) camera-frame points under the keypoints (M, 2); NaN rows where depth is 0."""
+    h, w = depth.shape
+    u = np.clip(np.rint(keypoints[:, 0]).astype(np.int64), 0, w - 1)
+    v = np.clip(np.rint(keypoints[:, 1]).astype(np.int64), 0, h - 1)
+    z = depth[v, u].astype(np.float64)
+    z[z <= 0] = np.nan
+    x = (keypoints[:, 0] - cam.cx) / cam.fx * z
+    y = (keypoints[:, 1] - cam.cy) / cam.fy * z
+    return np.stack([x, y, z], axis=1)
+
+
+def _match(desc_a: NDArray[np.uint8], desc_b: NDArray[np.uint8], ratio: float) -> NDArray[np.int64]:
+    """(K, 2) index pairs (a, b) of ORB matches passing Lowe's ratio test, one per b."""
+    import cv2
+
+    if len(desc_a) < 2 or len(desc_b) < 1:
+        return np.zeros((0, 2), dtype=np.int64)
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(desc_b, desc_a, k=2)
+    good = [
+        (m[0].trainIdx, m[0].queryIdx)
+        for m in pairs
+        if len(m) == 2 and m[0].distance < ratio * m[1].distance
+    ]
+    return np.array(good, dtype=np.int64).reshape(-1, 2)
+
+
+def _open3d() -> Any:
+    from slamcli.backends import import_open3d
+
+    return import_open3d()
