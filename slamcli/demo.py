@@ -23,9 +23,10 @@ def run_demo(
     force: bool = False,
     progress: ProgressFn | None = None,
 ) -> RunOutcome:
-    """Inspect the sample sequence, track it with RGB-D odometry and score it against ground truth.
+    """Dense RGB-D SLAM on the sample sequence, scored against its ground truth.
 
-    Writes the run folder ``out`` (trajectory.tum, report.png, run.json).
+    Writes the run folder ``out``: trajectory.tum, keyframes.tum, mesh.ply, mesh.glb,
+    points.ply, report.png and run.json.
     """
     path = Path(data) if data is not None else default_sample()
     if not path.exists():
@@ -33,4 +34,6 @@ def run_demo(
             f"{path}: sample data not found",
             hint="make one with 'slamcli synth rgbd DIR' and pass it with --data DIR",
         )
-    return run_pipeline(path, "odometry", out, force=force, command="demo", progress=progress)
+    return run_pipeline(
+        path, "dense", out, force=force, command="demo", glb=True, progress=progress
+    )

@@ -12,7 +12,7 @@ from typing import Any
 from slamcli.errors import InputError, PipelineError
 from slamcli.formats.base import SourceInfo
 from slamcli.rundir import RunDir, Timings, hash_input
-from slamcli.types import ProgressFn, SlamResult, Trajectory
+from slamcli.types import ProgressFn, SlamResult, Trajectory, TriangleMesh
 
 log = logging.getLogger(__name__)
 
@@ -42,13 +42,15 @@ def run_pipeline(
     max_frames: int | None = None,
     command: str = "",
     mcap: bool = False,
+    glb: bool = False,
     progress: ProgressFn | None = None,
 ) -> RunOutcome:
     """Run a pipeline over a source and write its run folder.
 
     Writes ``trajectory.tum``, ``report.png`` (when ground truth exists), ``result.mcap`` (with
-    ``mcap=True``) and ``run.json`` (schema in README.md). ATE and RPE against the source's
-    ground truth go into the metrics with SE(3) alignment.
+    ``mcap=True``), ``keyframes.tum``, ``mesh.ply`` (and ``mesh.glb`` with ``glb=True``) and
+    ``points.ply`` when the pipeline makes them, and ``run.json`` (schema in README.md). ATE
+    and RPE against the source's ground truth go into the metrics with SE(3) alignment.
     """
     from slamcli.formats import open_source
     from slamcli.pipelines import get_pipeline
@@ -87,7 +89,7 @@ def run_pipeline(
 
     metrics: dict[str, Any] = {}
     if groundtruth is not None:
-        metrics = _evaluate(groundtruth, result.trajectory, run, timings)
+        metrics = _evaluate(groundtruth, result.trajectory, run, timings, result.mesh)
         if "report.png" in run.outputs:
             outputs.append(run.file("report.png"))
     else:
@@ -100,7 +102,7 @@ def run_pipeline(
         **result.counts,
     }
     with timings.stage("export"):
-        outputs += _write_products(run, result)
+        outputs += _write_products(run, result, glb)
 
     if mcap:
         from slamcli.formats.mcap.write import write_result_log
@@ -131,7 +133,11 @@ def run_pipeline(
 
 
 def _evaluate(
-    groundtruth: Trajectory, estimate: Trajectory, run: RunDir, timings: Timings
+    groundtruth: Trajectory,
+    estimate: Trajectory,
+    run: RunDir,
+    timings: Timings,
+    mesh: TriangleMesh | None = None,
 ) -> dict[str, Any]:
     from slamcli.evaluation import evaluate
     from slamcli.report import plot_evaluation
@@ -143,12 +149,12 @@ def _evaluate(
             log.warning("no accuracy figures: %s", exc.msg)
             return {}
     with timings.stage("report"):
-        plot_evaluation(run.output("report.png"), ev, "ground truth", "estimate")
+        plot_evaluation(run.output("report.png"), ev, "ground truth", "estimate", mesh=mesh)
     return {"evaluation": ev.to_dict()}
 
 
-def _write_products(run: RunDir, result: SlamResult) -> list[Path]:
-    """keyframes.tum, mesh.ply and points.ply, for the parts of the result a pipeline made."""
+def _write_products(run: RunDir, result: SlamResult, glb: bool) -> list[Path]:
+    """keyframes.tum, mesh.ply (and .glb) and points.ply, for what the pipeline made."""
     from slamcli.formats.trajectory import write_tum
 
     written = []
@@ -158,6 +164,10 @@ def _write_products(run: RunDir, result: SlamResult) -> list[Path]:
         from slamcli.formats.mesh import write_ply
 
         written.append(write_ply(run.output("mesh.ply"), result.mesh))
+        if glb:
+            from slamcli.formats.mesh import write_glb
+
+            written.append(write_glb(run.output("mesh.glb"), result.mesh))
     if result.points is not None and len(result.points):
         from slamcli.formats.mesh import write_points_ply
 

@@ -22,16 +22,23 @@ def test_demo_writes_an_accurate_run(tmp_path: Path) -> None:
     out = tmp_path / "demo"
     res = runner.invoke(app, ["demo", "--out", str(out)])
     assert res.exit_code == 0, res.output
-    assert {p.name for p in out.iterdir()} == {"trajectory.tum", "report.png", "run.json"}
+    products = {"trajectory.tum", "keyframes.tum", "mesh.ply", "mesh.glb", "points.ply"}
+    assert {p.name for p in out.iterdir()} == products | {"report.png", "run.json"}
     record = json.loads((out / "run.json").read_text())
     ev = record["metrics"]["evaluation"]
     assert ev["pairs"] == 30
-    # The sample camera moves about 9 mm and 0.8° per frame; odometry must track it closely.
+    # The sample camera moves about 9 mm and 0.8° per frame; dense SLAM must track it closely.
     assert ev["ate"]["rmse"] < 0.02
     assert ev["rpe"]["rot_deg"]["mean"] < 0.3
     assert record["counts"]["frames_processed"] == 30
     assert record["counts"]["frames_lost"] == 0
-    assert record["outputs"] == ["trajectory.tum", "report.png", "run.json"]
+    assert record["outputs"][-1] == "run.json"
+    assert set(record["outputs"]) == products | {"report.png", "run.json"}
+    import trimesh
+
+    glb = trimesh.load(str(out / "mesh.glb"), file_type="glb", process=False)
+    (geometry,) = glb.geometry.values()
+    assert len(geometry.faces) > 10_000
     assert (out / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "ATE (m)" in res.stdout
 
@@ -113,4 +120,32 @@ def test_an_option_the_format_does_not_take_is_refused_before_anything_is_writte
     )
     assert res.exit_code == 1
     assert "--rgb-topic does not apply to tum inputs" in res.output
+    assert not out.exists()
+
+
+def test_run_dense_without_a_depth_stream_says_so(tmp_path: Path) -> None:
+    import shutil
+
+    from tests.test_mcap_source import _image_log
+
+    folder = tmp_path / "room"
+    shutil.copytree(default_sample(), folder)
+    (folder / "depth.txt").unlink()
+    res = runner.invoke(app, ["run", "dense", str(folder), "--out", str(tmp_path / "a")])
+    assert res.exit_code == 1
+    assert "no depth.txt" in res.output and "Traceback" not in res.output
+    log = _image_log(tmp_path / "colour_only.mcap", {"/camera/color/image_raw": "rgb8"})
+    res = runner.invoke(app, ["run", "dense", str(log), "--out", str(tmp_path / "b")])
+    assert res.exit_code == 2
+    assert "no depth topics found" in res.output and "--depth-topic" in res.output
+    assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
+
+
+def test_run_dense_settings_are_checked_before_reading(tmp_path: Path) -> None:
+    out = tmp_path / "d"
+    res = runner.invoke(
+        app, ["run", "dense", str(default_sample()), "--out", str(out), "--set", "voxel_size_m=-1"]
+    )
+    assert res.exit_code == 1
+    assert "dense.voxel_size_m" in res.output
     assert not out.exists()

@@ -28,9 +28,10 @@ def demo(
 ) -> None:
     """Run the main job on the bundled sample data and show what it wrote.
 
-    Inspects the sample RGB-D sequence, tracks the camera with RGB-D odometry, scores the
-    trajectory against ground truth (ATE, RPE) and writes trajectory.tum, report.png and
-    run.json into --out. Exits with 3 when frames had to be skipped.
+    Runs dense RGB-D SLAM on the sample RGB-D sequence (tracking, TSDF fusion, loop
+    closure), scores the trajectory against ground truth (ATE, RPE) and writes
+    trajectory.tum, keyframes.tum, mesh.ply, mesh.glb, points.ply, report.png and run.json
+    into --out. Exits with 3 when frames had to be skipped.
 
     Example: [bold]slamcli demo --out runs/demo --force[/]
     """
