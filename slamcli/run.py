@@ -87,9 +87,10 @@ def run_pipeline(
     with timings.stage("export"):
         outputs.append(write_tum(run.output("trajectory.tum"), result.trajectory))
 
-    metrics: dict[str, Any] = {}
+    # The pipeline's own figures (per-stage ms/frame, loop closures, ...) plus the evaluation.
+    metrics: dict[str, Any] = dict(result.metrics)
     if groundtruth is not None:
-        metrics = _evaluate(groundtruth, result.trajectory, run, timings, result.mesh)
+        metrics.update(_evaluate(groundtruth, result.trajectory, run, timings, result.mesh))
         if "report.png" in run.outputs:
             outputs.append(run.file("report.png"))
     else:

@@ -29,7 +29,7 @@ import logging
 import math
 import time
 from collections import defaultdict
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -335,7 +335,6 @@ class DenseSlam:
             metrics={
                 "ms_per_frame": stages,
                 "loop_closures": self._loop_records,
-                "config": asdict(self.config),
             },
             counts=counts,
         )

@@ -10,7 +10,7 @@ lost.
 from __future__ import annotations
 
 import logging
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -86,7 +86,6 @@ class RgbdOdometry:
         return SlamResult(
             trajectory=traj,
             counts={"frames_tracked": len(self._poses) - self._lost, "frames_lost": self._lost},
-            metrics={"config": asdict(self.config)},
         )
 
     def _to_open3d(self, frame: RgbdFrame) -> Any:
