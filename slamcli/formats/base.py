@@ -6,7 +6,7 @@ from collections.abc import Collection, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Protocol
+from typing import Any, Protocol, TypeVar
 
 from slamcli.types import (
     ImageFrame,
@@ -91,3 +91,33 @@ class Source(Protocol):
     def frames(self, kinds: Collection[str] = ("rgbd",)) -> Iterator[Frame]: ...
 
     def groundtruth(self) -> Trajectory | None: ...
+
+
+_S = TypeVar("_S", bound="SourceBase")
+
+
+class SourceBase:
+    """What every source class shares: ``open`` and the context-manager protocol.
+
+    Subclasses take their options as keyword arguments and release what they hold in
+    :meth:`close`.
+    """
+
+    @classmethod
+    def open(cls: type[_S], path: str | Path, **options: Any) -> _S:
+        """Open ``path``; ``options`` are the constructor's keyword arguments."""
+        return cls(path, **options)  # type: ignore[call-arg]
+
+    def close(self) -> None:
+        """Release files and caches (nothing by default)."""
+
+    def __enter__(self: _S) -> _S:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()

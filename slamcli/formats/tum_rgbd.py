@@ -31,14 +31,13 @@ from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from types import TracebackType
 from typing import Any, cast
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slamcli.errors import ConfigError, FormatError, InputError
-from slamcli.formats.base import Frame, ReadStats, SourceInfo, StreamInfo
+from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
 from slamcli.formats.camera import DEFAULT_DEPTH_FACTOR, resolve_camera
 from slamcli.formats.text import iter_data_lines, parse_floats, parse_stamp_ns
 from slamcli.formats.trajectory import read_trajectory
@@ -172,7 +171,7 @@ def associate_stamps(
     return out[:, 0], out[:, 1]
 
 
-class TumRgbdSource:
+class TumRgbdSource(SourceBase):
     """A TUM RGB-D folder as a :class:`~slamcli.formats.base.Source`.
 
     Args:
@@ -274,20 +273,7 @@ class TumRgbdSource:
         p = Path(path)
         return p.is_dir() and ((p / "rgb.txt").is_file() or (p / "depth.txt").is_file())
 
-    @classmethod
-    def open(cls, path: str | Path, **options: Any) -> TumRgbdSource:
-        """Open a TUM folder; ``options`` are the constructor's keyword arguments."""
-        return cls(path, **options)
-
-    def __enter__(self) -> TumRgbdSource:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def close(self) -> None:
         self._maps = None
 
     def __len__(self) -> int:

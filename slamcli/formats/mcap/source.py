@@ -27,13 +27,12 @@ import itertools
 import logging
 from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 import numpy as np
 
 from slamcli.errors import ConfigError, InputError, TopicNotFoundError
-from slamcli.formats.base import Frame, ReadStats, SourceInfo, StreamInfo
+from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
 from slamcli.formats.mcap.adapters import Adapter, adapter_for, normalize_schema_name
 from slamcli.formats.mcap.decode import DecodeError, decoder_for
 from slamcli.formats.mcap.reader import McapLog
@@ -91,7 +90,7 @@ _FORCE_FLUSH = 32
 """Buffered images at which pairing is settled even without a safe gap (very dense streams)."""
 
 
-class McapSource:
+class McapSource(SourceBase):
     """An MCAP log as a :class:`~slamcli.formats.base.Source`.
 
     Args:
@@ -183,19 +182,7 @@ class McapSource:
         with p.open("rb") as fh:
             return fh.read(len(MAGIC)) == MAGIC
 
-    @classmethod
-    def open(cls, path: str | Path, **options: Any) -> McapSource:
-        return cls(path, **options)
-
-    def __enter__(self) -> McapSource:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def close(self) -> None:
         self.log.close()
 
     # -- topics ------------------------------------------------------------------------------
