@@ -64,8 +64,6 @@ class LogHealth:
     chunk_overlap: bool = False
     reordered: int = 0
     dropped_late: int = 0
-    undecodable_channels: dict[str, str] = field(default_factory=dict)
-    """topic -> reason, for channels nobody asked for that could not be decoded."""
 
     @property
     def data_lost(self) -> bool:
@@ -91,29 +89,11 @@ class LogHealth:
 
     def problems(self) -> list[str]:
         """Human-readable one-line descriptions, for ``info`` and run reports."""
-        out = []
-        if self.truncated:
-            where = (
-                f" at byte {self.truncated_at_byte}" if self.truncated_at_byte is not None else ""
-            )
-            out.append(
-                f"truncated: the log ends without a footer{where}; messages up to "
-                f"{_sec(self.last_good_time_ns)} were read (try 'mcap recover')"
-            )
-        elif not self.summary_present:
+        out = self.loss_problems()
+        if not self.summary_present and not self.truncated:
             out.append("no summary section: statistics were counted by a full scan")
-        for start, end, offset in self.bad_chunks:
-            out.append(
-                f"bad chunk at byte {offset} skipped: messages {_sec(start)}-{_sec(end)} lost"
-            )
         if self.chunk_overlap:
             out.append("chunks overlap in time: messages were merged into log-time order")
-        if self.dropped_late:
-            out.append(
-                f"{self.dropped_late} message(s) arrived too late to reorder and were dropped"
-            )
-        for topic, reason in sorted(self.undecodable_channels.items()):
-            out.append(f"channel {topic} cannot be decoded ({reason}); ignored")
         return out
 
 

@@ -353,10 +353,10 @@ class McapSource(SourceBase):
         self._note_damage()
 
     def _note_damage(self) -> None:
+        # The reader has already warned as it read around the damage; this only records it.
         for problem in self.log.health.loss_problems():
             if problem not in self.stats.data_loss:
                 self.stats.data_loss.append(problem)
-                log.warning("%s: %s", self.path, problem)
 
     # -- frames --------------------------------------------------------------------------------
 
