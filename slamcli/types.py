@@ -209,13 +209,39 @@ class OccupancyGrid:
     origin_xy_yaw: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
+@dataclass(frozen=True)
+class LandmarkMap:
+    """Point landmarks in the plane.
+
+    Attributes:
+        ids: (K,) int64 landmark ids (the log's ids with known correspondences, else the
+            filter's own numbering).
+        xy: (K, 2) float64 positions, metres.
+        cov: (K, 2, 2) float64 position covariances, m², or None when unknown.
+    """
+
+    ids: NDArray[np.int64]
+    xy: NDArray[np.float64]
+    cov: NDArray[np.float64] | None = None
+
+    def __len__(self) -> int:
+        return int(self.ids.shape[0])
+
+
 @dataclass
 class SlamResult:
     """What a pipeline produces; every field is optional. metrics and counts go to run.json."""
 
     trajectory: Trajectory | None = None
     keyframes: Trajectory | None = None
-    landmarks: NDArray[np.float64] | None = None
+    landmarks: LandmarkMap | None = None
+    pose_covariances: NDArray[np.float64] | None = None
+    """(N, 3, 3) covariance of (x, y, yaw) for each trajectory row (planar pipelines)."""
+    dead_reckoning: Trajectory | None = None
+    """The odometry integrated alone, for comparison (planar pipelines)."""
+    series: dict[str, NDArray[np.float64]] = field(default_factory=dict)
+    """Time series for the report, e.g. ``nis``: (K, 2) rows of stamp (s) and value; not
+    written to run.json."""
     points: NDArray[np.float64] | None = None
     point_colors: NDArray[np.uint8] | None = None
     mesh: TriangleMesh | None = None

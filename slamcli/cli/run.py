@@ -91,6 +91,18 @@ DOCS = {
 
     Example: [bold]slamcli run dense rgbd_dataset_freiburg1_xyz --out runs/xyz --set voxel_m=0.01[/]
     """,
+    "ekf": """EKF landmark SLAM: a planar trajectory and a landmark map from odometry and
+    range-bearing observations.
+
+    Reads an MRCLAM folder (--robot N), a Victoria Park file (GTSAM format), a
+    'slamcli synth landmarks' folder or an MCAP log with odometry and landmark observations.
+    Known correspondences when the log has landmark ids, nearest neighbour with chi-square
+    gating (or JCBB) otherwise (--ignore-ids). Writes trajectory.tum, landmarks.csv,
+    report.png and run.json (ATE after SE(2) alignment, landmark RMSE, NEES/NIS when the log
+    has ground truth). Settings: 'slamcli config dump ekf'.
+
+    Example: [bold]slamcli run ekf MRCLAM_Dataset6 --robot 2 --out runs/mrclam2[/]
+    """,
 }
 
 

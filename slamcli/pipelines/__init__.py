@@ -8,6 +8,7 @@ from typing import Any
 PIPELINES: dict[str, str] = {
     "odometry": "slamcli.pipelines.odometry:RgbdOdometry",
     "dense": "slamcli.pipelines.dense:DenseSlam",
+    "ekf": "slamcli.pipelines.ekf:EkfSlam",
 }
 """Pipeline classes by name, as ``module:Class`` so heavy modules load only when used."""
 
