@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from slamcli.errors import ExportError
 from slamcli.evaluation import EvalResult
 from slamcli.rundir import atomic_path
-from slamcli.types import TriangleMesh
+from slamcli.types import LandmarkMap, Trajectory, TriangleMesh
+
+if TYPE_CHECKING:
+    from slamcli.planar_eval import PlanarEval
 
 
 def plot_evaluation(
@@ -85,3 +88,318 @@ def _mesh_view(ax: Any, mesh: TriangleMesh, result: EvalResult) -> None:
     ax.set_ylabel("y (m)")
     ax.set_title(f"Mesh from above ({len(mesh.vertices)} vertices, {len(mesh.faces)} faces)")
     ax.legend(loc="best", fontsize="small")
+
+
+_MAX_LINE_POINTS = 20_000
+"""Longest polyline drawn as is; longer ones are decimated (every k-th point and the last)."""
+
+
+def _decimated(a: Any, limit: int = _MAX_LINE_POINTS) -> Any:
+    n = len(a)
+    if n <= limit:
+        return a
+    import numpy as np
+
+    step = -(-n // limit)
+    idx = np.arange(0, n, step)
+    if idx[-1] != n - 1:
+        idx = np.append(idx, n - 1)
+    return a[idx]
+
+
+def _ellipses(ax: Any, xy: Any, cov: Any, sigma: float = 3.0, **kwargs: Any) -> None:
+    """``sigma``-σ ellipses of (K, 2, 2) covariances at (K, 2) centres, as one collection."""
+    import numpy as np
+    from matplotlib.collections import EllipseCollection
+
+    sym = 0.5 * (cov + np.swapaxes(cov, 1, 2))
+    ok = np.all(np.isfinite(sym), axis=(1, 2)) & np.all(np.isfinite(xy), axis=1)
+    if not np.any(ok):
+        return
+    vals, vecs = np.linalg.eigh(sym[ok])
+    vals = np.clip(vals, 0.0, None)
+    angles = np.rad2deg(np.arctan2(vecs[:, 1, 1], vecs[:, 0, 1]))  # major axis: last column
+    coll = EllipseCollection(
+        2.0 * sigma * np.sqrt(vals[:, 1]),  # full axis lengths
+        2.0 * sigma * np.sqrt(vals[:, 0]),
+        angles,
+        units="xy",
+        offsets=xy[ok],
+        offset_transform=ax.transData,
+        **kwargs,
+    )
+    ax.add_collection(coll, autolim=False)
+
+
+def _log_y(ax: Any) -> None:
+    """Log y axis with plain decade labels (0.01, 0.1, 1, 10) and no minor ticks.
+
+    Minor log ticks and the default mathtext labels cost as much to draw as the data.
+    """
+    from matplotlib.ticker import FuncFormatter, NullLocator
+
+    ax.set_yscale("log")
+    ax.yaxis.set_minor_locator(NullLocator())
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+
+
+def _running_mean(t: Any, v: Any, ax: Any, label: str) -> None:
+    """A centred moving average over about 2 % of the samples, drawn over the raw values."""
+    import numpy as np
+
+    w = max(1, len(v) // 50)
+    if w < 3:
+        return
+    c = np.concatenate([[0.0], np.cumsum(v)])
+    mean = (c[w:] - c[:-w]) / w
+    tm = t[w // 2 : w // 2 + mean.size]
+    ax.plot(*_decimated(np.stack([tm, mean], axis=1)).T, color="k", lw=1.2, label=label)
+
+
+def _series_time(series: Any, t0_s: float) -> Any:
+    """Series stamps (s) relative to the estimate's first stamp when they share its clock."""
+    t = series[:, 0]
+    return t - t0_s if t.size and float(t.min()) >= t0_s - 1.0 else t
+
+
+def plot_landmark_run(
+    path: str | Path,
+    *,
+    estimate: Trajectory,
+    landmarks: LandmarkMap | None,
+    evaluation: PlanarEval | None = None,
+    true_landmarks: LandmarkMap | None = None,
+    dead_reckoning: Trajectory | None = None,
+    series: dict[str, Any] | None = None,
+    title: str = "",
+) -> Path:
+    """Write a PNG report of a planar landmark SLAM run (1400 x 700 pixels).
+
+    Left: a top view with the ground truth (with an evaluation), the estimate and the dead
+    reckoning moved by the evaluation's SE(2) alignment, the estimated landmarks with their
+    3σ ellipses (covariances rotated by the alignment) and the surveyed landmarks. Right,
+    with an evaluation: the position error over time (and the dead reckoning's, log scale)
+    and the pose NEES with its 95 % band; without: ``series["nis"]`` ((K, 2) rows of stamp in
+    seconds and NIS) with its 95 % band for 2 DoF, and ``series["landmarks"]`` (stamp, count).
+    Series stamps in the estimate's clock are shown relative to its first pose.
+    """
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from slamcli.geometry import interpolate_planar, se3_to_planar
+    from slamcli.planar_eval import nees_band
+
+    series = series or {}
+    ev = evaluation
+    t0_ns = int(estimate.stamps_ns[0]) if len(estimate) else 0
+
+    def moved(xy: Any) -> Any:
+        return ev.transform_xy(xy) if ev is not None else xy
+
+    # Fixed margins, not the constrained layout: that would measure every tick label twice
+    # and double the drawing time of a large run.
+    fig = Figure(figsize=(14, 7))
+    FigureCanvasAgg(fig)
+    grid = fig.add_gridspec(
+        2,
+        2,
+        width_ratios=(1.1, 1),
+        left=0.06,
+        right=0.985,
+        bottom=0.08,
+        top=0.87 if title else 0.9,
+        wspace=0.16,
+        hspace=0.32,
+    )
+    top = fig.add_subplot(grid[:, 0])
+    upper = fig.add_subplot(grid[0, 1])
+    lower = fig.add_subplot(grid[1, 1], sharex=upper)
+
+    # Top view.
+    if ev is not None:
+        g = _decimated(ev.gt[:, :2])
+        top.plot(g[:, 0], g[:, 1], color="0.3", lw=1.4, ls="--", label="ground truth", zorder=2)
+    if dead_reckoning is not None and len(dead_reckoning):
+        d = moved(_decimated(dead_reckoning.positions[:, :2]))
+        top.plot(d[:, 0], d[:, 1], color="tab:orange", lw=0.7, alpha=0.8, label="dead reckoning")
+    est_xy = moved(_decimated(estimate.positions[:, :2])) if len(estimate) else np.zeros((0, 2))
+    top.plot(est_xy[:, 0], est_xy[:, 1], color="tab:blue", lw=1.1, label="estimate", zorder=3)
+    if len(est_xy):
+        top.plot(*est_xy[0], marker="o", ms=8, mfc="none", mec="k", mew=1.5, ls="", label="start")
+    n_lm = 0 if landmarks is None else len(landmarks)
+    if landmarks is not None and n_lm:
+        lxy = moved(np.asarray(landmarks.xy, dtype=np.float64).reshape(-1, 2))
+        if landmarks.cov is not None:
+            cov = np.asarray(landmarks.cov, dtype=np.float64).reshape(-1, 2, 2)
+            _ellipses(
+                top,
+                lxy,
+                ev.transform_cov(cov) if ev is not None else cov,
+                facecolors="none",
+                edgecolors="tab:green",
+                linewidths=0.6,
+                alpha=0.8,
+                zorder=4,
+            )
+        top.scatter(
+            lxy[:, 0],
+            lxy[:, 1],
+            s=9,
+            c="tab:green",
+            marker="+",
+            linewidths=0.9,
+            label=f"landmarks ({n_lm}, 3σ)",
+            zorder=5,
+        )
+    if true_landmarks is not None and len(true_landmarks):
+        txy = np.asarray(true_landmarks.xy, dtype=np.float64).reshape(-1, 2)
+        top.scatter(
+            txy[:, 0],
+            txy[:, 1],
+            s=20,
+            marker="x",
+            c="tab:red",
+            linewidths=0.8,
+            alpha=0.8,
+            label="true landmarks",
+            zorder=3.5,
+        )
+    top.set_aspect("equal", adjustable="datalim")
+    top.set_xlabel("x (m)")
+    top.set_ylabel("y (m)")
+    parts = []
+    if ev is not None:
+        parts.append(f"ATE {ev.ate.rmse:.3f} m (SE(2)), {ev.ate_unaligned.rmse:.3f} m unaligned")
+    if ev is not None and ev.landmarks is not None and ev.landmarks.rmse_m is not None:
+        parts.append(f"landmark RMSE {ev.landmarks.rmse_m:.3f} m")
+    parts.append(f"{n_lm} landmarks")
+    top.set_title(
+        "Top view" + (", SE(2) aligned" if ev is not None else "") + "\n" + ", ".join(parts)
+    )
+    top.legend(loc="best", fontsize="small")
+    top.grid(alpha=0.3)
+
+    if ev is not None:
+        t = (ev.stamps_ns - t0_ns) * 1e-9
+        upper.plot(
+            *_decimated(np.stack([t, ev.ate_m], axis=1)).T,
+            color="tab:blue",
+            lw=0.9,
+            label=f"estimate, rmse {ev.ate.rmse:.3f} m",
+        )
+        if dead_reckoning is not None and len(dead_reckoning) > 1:
+            dr = interpolate_planar(
+                dead_reckoning.stamps_ns,
+                se3_to_planar(dead_reckoning.world_from_body),
+                ev.stamps_ns,
+            )
+            dr_err = np.linalg.norm(ev.transform_xy(dr[:, :2]) - ev.gt[:, :2], axis=1)
+            ok = np.isfinite(dr_err)
+            if np.any(ok):
+                rmse = float(np.sqrt(np.mean(dr_err[ok] ** 2)))
+                upper.plot(
+                    *_decimated(np.stack([t[ok], dr_err[ok]], axis=1)).T,
+                    color="tab:orange",
+                    lw=0.8,
+                    label=f"dead reckoning, rmse {rmse:.3f} m",
+                )
+                _log_y(upper)
+        upper.set_ylabel("position error (m)")
+        upper.set_title("Position error after SE(2) alignment")
+        upper.legend(loc="lower right", fontsize="small")
+        upper.grid(alpha=0.3)
+        if ev.nees is not None:
+            nees = ev.nees
+            tn = (nees.stamps_ns - t0_ns) * 1e-9
+            lo, hi = nees.band
+            vals = np.clip(nees.values, 1e-3, None)
+            lower.plot(
+                *_decimated(np.stack([tn, vals], axis=1)).T,
+                color="tab:purple",
+                lw=0.7,
+                alpha=0.6,
+                label=f"NEES, mean {nees.mean:.2f}",
+            )
+            _running_mean(tn, nees.values, lower, "running mean")
+            lower.axhspan(
+                lo, hi, color="tab:green", alpha=0.15, label=f"95 % band ({lo:.2f}, {hi:.2f})"
+            )
+            lower.axhline(3.0, color="k", lw=0.8, ls=":")
+            _log_y(lower)
+            verdict = "consistent" if nees.consistent else "inconsistent"
+            lower.set_title(
+                f"Pose NEES (3 DoF): {verdict}, {100 * nees.fraction_in_band:.0f} % in band"
+            )
+            lower.legend(loc="lower right", fontsize="small")
+        else:
+            lower.text(
+                0.5, 0.5, "no pose covariances", ha="center", va="center", transform=lower.transAxes
+            )
+            lower.set_title("Pose NEES")
+        lower.set_ylabel("NEES")
+        lower.grid(alpha=0.3)
+    else:
+        t0_s = t0_ns * 1e-9
+        nis = series.get("nis")
+        if nis is not None and len(nis):
+            nis = np.asarray(nis, dtype=np.float64).reshape(-1, 2)
+            lo, hi = nees_band(2)
+            tn = _series_time(nis, t0_s)
+            vals = np.clip(nis[:, 1], 1e-3, None)
+            upper.plot(
+                *_decimated(np.stack([tn, vals], axis=1)).T,
+                ls="",
+                marker=".",
+                ms=1.5,
+                color="tab:purple",
+                alpha=0.5,
+                label=f"NIS, mean {np.mean(nis[:, 1]):.2f}",
+            )
+            _running_mean(tn, nis[:, 1], upper, "running mean")
+            upper.axhspan(
+                lo, hi, color="tab:green", alpha=0.15, label=f"95 % band ({lo:.2f}, {hi:.2f})"
+            )
+            upper.axhline(2.0, color="k", lw=0.8, ls=":")
+            _log_y(upper)
+            inside = float(np.mean((nis[:, 1] >= lo) & (nis[:, 1] <= hi)))
+            upper.set_title(f"Innovation NIS (2 DoF), {100 * inside:.0f} % in band")
+            upper.legend(loc="lower right", fontsize="small")
+        else:
+            upper.text(
+                0.5, 0.5, "no NIS series", ha="center", va="center", transform=upper.transAxes
+            )
+            upper.set_title("Innovation NIS")
+        upper.set_ylabel("NIS")
+        upper.grid(alpha=0.3)
+        counts = series.get("landmarks")
+        if counts is not None and len(counts):
+            counts = np.asarray(counts, dtype=np.float64).reshape(-1, 2)
+            lower.plot(
+                *_decimated(np.stack([_series_time(counts, t0_s), counts[:, 1]], axis=1)).T,
+                color="tab:green",
+                lw=1.0,
+                drawstyle="steps-post",
+            )
+            lower.set_title(f"Landmarks in the map ({int(counts[-1, 1])} at the end)")
+        else:
+            lower.text(
+                0.5,
+                0.5,
+                "no landmark count series",
+                ha="center",
+                va="center",
+                transform=lower.transAxes,
+            )
+            lower.set_title("Landmarks in the map")
+        lower.set_ylabel("landmarks")
+        lower.grid(alpha=0.3)
+    lower.set_xlabel("time since the first pose (s)")
+    if title:
+        fig.suptitle(title)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, format="png", dpi=100)
+    except OSError as exc:
+        raise ExportError(f"{path}: cannot write the plot ({exc.strerror})") from exc
+    return Path(path)

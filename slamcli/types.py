@@ -202,11 +202,15 @@ class OccupancyGrid:
     """prob (H, W) float32 occupancy probability, NaN = unknown; row 0 is the lowest y.
 
     ``origin_xy_yaw`` is the pose of cell (0, 0)'s lower-left corner in the world (m, m, rad).
+    ``source_format`` is how a reader found the grid stored (plain JSON-like data, e.g. a
+    map_server YAML's mode, thresholds and text), so a writer can store it back the same way;
+    None for grids made in memory. It takes no part in comparisons.
     """
 
     prob: NDArray[np.float32]
     resolution_m: float
     origin_xy_yaw: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    source_format: dict[str, Any] | None = field(default=None, compare=False, repr=False)
 
 
 @dataclass(frozen=True)
