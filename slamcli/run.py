@@ -12,7 +12,7 @@ from typing import Any
 from slamcli.errors import InputError, PipelineError
 from slamcli.formats.base import SourceInfo
 from slamcli.rundir import RunDir, Timings, hash_input
-from slamcli.types import ProgressFn, SlamResult, Trajectory, TriangleMesh
+from slamcli.types import LandmarkMap, ProgressFn, SlamResult, Trajectory, TriangleMesh
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +62,9 @@ def run_pipeline(
     with open_source(input_path, **dict(source_options or {})) as source:
         with timings.stage("open"):
             info = source.info()
+            # Planar pipelines start at the log's ground-truth pose when it has one.
+            if hasattr(pipe, "set_start") and hasattr(source, "start_pose"):
+                pipe.set_start(source.start_pose())
         # info's count is an estimate for some formats (MCAP pairs by log time there): it sizes
         # the progress bar but never limits the run.
         total = info.frames if max_frames is None else min(info.frames, max_frames)
@@ -77,6 +80,7 @@ def run_pipeline(
         # After the frames: a source may give ground truth at the times of the frames it read.
         with timings.stage("groundtruth"):
             groundtruth = source.groundtruth()
+            true_landmarks = source.landmark_truth() if hasattr(source, "landmark_truth") else None
         stats = source.stats
     if result.trajectory is None or len(result.trajectory) == 0:
         raise PipelineError(f"{input_path}: the {pipeline} pipeline produced no poses")
@@ -89,7 +93,10 @@ def run_pipeline(
 
     # The pipeline's own figures (per-stage ms/frame, loop closures, ...) plus the evaluation.
     metrics: dict[str, Any] = dict(result.metrics)
-    if groundtruth is not None:
+    if result.landmarks is not None:
+        metrics.update(_evaluate_planar(groundtruth, true_landmarks, result, run, timings))
+        outputs.append(run.file("report.png"))
+    elif groundtruth is not None:
         metrics.update(_evaluate(groundtruth, result.trajectory, run, timings, result.mesh))
         if "report.png" in run.outputs:
             outputs.append(run.file("report.png"))
@@ -154,11 +161,66 @@ def _evaluate(
     return {"evaluation": ev.to_dict()}
 
 
+def _evaluate_planar(
+    groundtruth: Trajectory | None,
+    true_landmarks: LandmarkMap | None,
+    result: SlamResult,
+    run: RunDir,
+    timings: Timings,
+) -> dict[str, Any]:
+    """SE(2) ATE, landmark RMSE and NEES of a planar run (when there is ground truth), the same
+    for dead reckoning, and report.png (a map of landmarks with 3σ ellipses in any case)."""
+    from slamcli.planar_eval import evaluate_planar
+    from slamcli.report import plot_landmark_run
+
+    assert result.trajectory is not None
+    metrics: dict[str, Any] = {}
+    evaluation = None
+    if groundtruth is not None:
+        with timings.stage("evaluate"):
+            known = result.metrics.get("association") == "known"
+            try:
+                evaluation = evaluate_planar(
+                    groundtruth,
+                    result.trajectory,
+                    est_cov=result.pose_covariances,
+                    landmarks=result.landmarks,
+                    true_landmarks=true_landmarks,
+                    known_ids=known,
+                )
+                metrics["evaluation"] = evaluation.to_dict()
+                if result.dead_reckoning is not None:
+                    dr = evaluate_planar(groundtruth, result.dead_reckoning)
+                    metrics["dead_reckoning"] = {
+                        "ate": dr.ate.to_dict(),
+                        "ate_unaligned": dr.ate_unaligned.to_dict(),
+                    }
+            except InputError as exc:
+                log.warning("no accuracy figures: %s", exc.msg)
+                evaluation = None
+    with timings.stage("report"):
+        plot_landmark_run(
+            run.output("report.png"),
+            estimate=result.trajectory,
+            landmarks=result.landmarks,
+            evaluation=evaluation,
+            true_landmarks=true_landmarks,
+            dead_reckoning=result.dead_reckoning,
+            series=result.series,
+        )
+    return metrics
+
+
 def _write_products(run: RunDir, result: SlamResult, glb: bool) -> list[Path]:
-    """keyframes.tum, mesh.ply (and .glb) and points.ply, for what the pipeline made."""
+    """keyframes.tum, landmarks.csv, mesh.ply (and .glb) and points.ply, for what the pipeline
+    made."""
     from slamcli.formats.trajectory import write_tum
 
     written = []
+    if result.landmarks is not None:
+        from slamcli.formats.landmark_map import write_landmarks_csv
+
+        written.append(write_landmarks_csv(run.output("landmarks.csv"), result.landmarks))
     if result.keyframes is not None and len(result.keyframes):
         written.append(write_tum(run.output("keyframes.tum"), result.keyframes))
     if result.mesh is not None and len(result.mesh.faces):

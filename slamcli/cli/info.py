@@ -23,8 +23,10 @@ from slamcli.cli.source_options import (
     Fy,
     GtFrame,
     GtTopic,
+    IgnoreIds,
     MaxDt,
     RgbTopic,
+    Robot,
     SourceOptions,
     Strict,
     Undistort,
@@ -36,6 +38,10 @@ if TYPE_CHECKING:
     from slamcli.types import PinholeCamera
 
 HELP = """Show what an input holds: streams, paired RGB-D frames, camera, ground truth, problems.
+
+For a landmark log (an MRCLAM folder with --robot N, a Victoria Park file, a 'slamcli synth \
+landmarks' folder): odometry and observation counts, dropped robot sightings, skipped unknown \
+barcodes, odometry gaps, landmark and robot ground truth and the start pose.
 
 For an MCAP log: every topic with its type, encoding, count and rate; the log's health \
 (summary, truncation, CRCs, overlapping chunks); the colour and depth topics and how many \
@@ -55,7 +61,12 @@ def register(app: typer.Typer) -> None:
 @boundary
 def info(
     input: Annotated[
-        Path, typer.Argument(help="A TUM RGB-D folder or an MCAP file.", show_default=False)
+        Path,
+        typer.Argument(
+            help="A TUM RGB-D folder, an MCAP file, an MRCLAM folder, a Victoria Park file or a "
+            "'slamcli synth landmarks' folder.",
+            show_default=False,
+        ),
     ],
     deep: Annotated[
         bool, typer.Option("--deep", help="Decode every image (slow) to find unreadable ones.")
@@ -78,6 +89,8 @@ def info(
     camera_info_topic: CameraInfoTopic = None,
     gt_topic: GtTopic = None,
     gt_frame: GtFrame = None,
+    robot: Robot = None,
+    ignore_ids: IgnoreIds = False,
 ) -> None:
     from slamcli.formats import open_source
 
@@ -123,7 +136,11 @@ def _show(info: SourceInfo) -> None:
         right_align=["count", "rate Hz", "span s"],
     )
     d = info.details
-    items: dict[str, Any] = {"frames": f"{info.frames} paired RGB-D frames"}
+    items: dict[str, Any]
+    if "landmark_observations" in d:
+        items = _landmark_items(info)
+    else:
+        items = {"frames": f"{info.frames} paired RGB-D frames"}
     if d.get("rgb_topic"):
         items["topics"] = f"colour {d['rgb_topic']}, depth {d['depth_topic']}"
     health = d.get("health")
@@ -165,6 +182,44 @@ def _show(info: SourceInfo) -> None:
             render.out.print(f"[yellow]problem:[/] {escape(p)}")
     else:
         render.out.print("[green]no problems found[/]")
+
+
+def _landmark_items(info: SourceInfo) -> dict[str, Any]:
+    """The key facts of a landmark log (MRCLAM, Victoria Park, synth landmarks)."""
+    d = info.details
+    items: dict[str, Any] = {}
+    if "robot" in d:
+        items["robot"] = f"{d['robot']} (robots here: {', '.join(map(str, d['robots']))})"
+    items["frames"] = (
+        f"{info.frames}: {d['odometry']} odometry ({d['odometry_kind']}), "
+        f"{d['landmark_frames']} with landmark observations"
+    )
+    odometry = []
+    if "odometry_max_gap_s" in d:
+        odometry.append(f"largest gap {d['odometry_max_gap_s']:.3f} s")
+        odometry.append(f"{d['odometry_repeated_stamps']} repeated stamp(s)")
+    if d.get("stamps"):
+        odometry.append(d["stamps"])
+    if odometry:
+        items["odometry"] = ", ".join(odometry)
+    ids = "ids ignored" if d["ignore_ids"] else f"{d['landmark_ids_seen']} distinct ids"
+    items["observations"] = f"{d['landmark_observations']} landmark observations, {ids}"
+    if "robot_sightings" in d:
+        items["robot sightings"] = f"{d['robot_sightings']} (dropped)"
+    unknown = d.get("unknown_barcodes")
+    if unknown is not None:
+        items["unknown barcodes"] = (
+            ", ".join(f"{b} ({n}x)" for b, n in unknown.items()) + " (skipped)"
+            if unknown
+            else "none"
+        )
+    items["landmarks"] = f"{d['landmarks']} surveyed" if d.get("landmarks") else "none"
+    if "dead_reckoning_length_m" in d:
+        items["dead reckoning"] = f"{d['dead_reckoning_length_m']:.1f} m travelled"
+    start = d.get("start_pose")
+    if start is not None:
+        items["start pose"] = f"x {start[0]:.3f} m, y {start[1]:.3f} m, yaw {start[2]:.3f} rad"
+    return items
 
 
 def _span(start: float | None, end: float | None) -> str:

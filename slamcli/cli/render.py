@@ -139,6 +139,39 @@ def progress(description: str, total: int | None = None) -> Iterator[ProgressFn]
         yield update
 
 
+def _planar_summary(metrics: dict[str, Any], counts: dict[str, Any]) -> None:
+    """The accuracy table of a planar landmark run: ATE beside dead reckoning, landmarks, NEES."""
+    ev = metrics["evaluation"]
+    rows = [["ATE (m), SE(2) aligned", *(f"{ev['ate'][k]:.4f}" for k in ("rmse", "mean", "max"))]]
+    dr = metrics.get("dead_reckoning")
+    if dr:
+        rows.append(
+            ["dead reckoning ATE (m)", *(f"{dr['ate'][k]:.4f}" for k in ("rmse", "mean", "max"))]
+        )
+    lm = ev.get("landmarks") or {}
+    if lm.get("rmse_m") is not None:
+        rows.append(
+            [f"landmark error (m), {lm.get('matched', 0)} matched", f"{lm['rmse_m']:.4f}", "", ""]
+        )
+    table(
+        f"Accuracy against ground truth ({ev['matched']} poses, SE(2) alignment)",
+        ["metric", "rmse", "mean", "max"],
+        rows,
+        right_align=["rmse", "mean", "max"],
+    )
+    nees = ev.get("nees")
+    filt = {
+        "landmarks": counts.get("landmarks", 0),
+        "updates": counts.get("updates", 0),
+        "rejected by gate": counts.get("rejected_by_gate", 0),
+    }
+    if nees:
+        filt["NEES (3 dof)"] = (
+            f"mean {nees['mean']:.2f}, {100 * nees['fraction_in_band']:.0f}% inside the 95% band"
+        )
+    key_values("Filter", filt)
+
+
 def run_summary(outcome: RunOutcome) -> None:
     """The input, the accuracy table (when the run was scored) and the files a run wrote."""
     info = outcome.info
@@ -147,14 +180,15 @@ def run_summary(outcome: RunOutcome) -> None:
         {
             "data": outcome.input_path,
             "format": info.format,
-            "RGB-D frames": f"{outcome.counts.get('frames_processed', 0)} processed "
-            f"of {info.frames}",
+            "frames": f"{outcome.counts.get('frames_processed', 0)} processed of {info.frames}",
             "ground-truth poses": info.groundtruth,
             "camera": info.camera_source,
         },
     )
     ev = outcome.metrics.get("evaluation")
-    if ev:
+    if ev and ev.get("alignment") == "se2":
+        _planar_summary(outcome.metrics, outcome.counts)
+    elif ev:
         stats = [("ATE (m)", ev["ate"])]
         if "rpe" in ev:
             stats.append(("RPE translation (m/frame)", ev["rpe"]["trans"]))

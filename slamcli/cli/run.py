@@ -22,9 +22,12 @@ from slamcli.cli.source_options import (
     Fy,
     GtFrame,
     GtTopic,
+    IgnoreIds,
+    LandmarkTopic,
     MaxDt,
     OdomTopic,
     RgbTopic,
+    Robot,
     SourceOptions,
     Strict,
     Undistort,
@@ -109,7 +112,12 @@ DOCS = {
 def _command(pipeline: str) -> Any:
     def command(
         input: Annotated[
-            Path, typer.Argument(help="A TUM RGB-D folder or an MCAP log.", show_default=False)
+            Path,
+            typer.Argument(
+                help="A TUM RGB-D folder, an MCAP log, an MRCLAM folder, a Victoria Park file "
+                "or a 'slamcli synth landmarks' folder.",
+                show_default=False,
+            ),
         ],
         out: Out,
         force: Force = False,
@@ -133,6 +141,9 @@ def _command(pipeline: str) -> Any:
         gt_topic: GtTopic = None,
         gt_frame: GtFrame = None,
         odom_topic: OdomTopic = None,
+        robot: Robot = None,
+        ignore_ids: IgnoreIds = False,
+        landmark_topic: LandmarkTopic = None,
     ) -> None:
         from slamcli.config import load_config
         from slamcli.pipelines import get_pipeline

@@ -1,4 +1,4 @@
-"""Options shared by every command that reads an RGB-D source (``info``, ``run dense``, ...).
+"""Options shared by every command that reads a source (``info``, ``run dense``, ``run ekf``, ...).
 
 A command declares the options with the ``Annotated`` aliases below and their defaults from
 :data:`DEFAULTS`, then collects them with :meth:`SourceOptions.pick`::
@@ -91,7 +91,27 @@ Strict = Annotated[
     bool,
     typer.Option(
         "--strict",
-        help="Stop at the first missing or unreadable image instead of skipping it.",
+        help="Stop at the first missing or unreadable image (MRCLAM: unknown barcode) "
+        "instead of skipping it.",
+        rich_help_panel=PANEL,
+    ),
+]
+
+Robot = Annotated[
+    int | None,
+    typer.Option(
+        "--robot",
+        min=1,
+        help="MRCLAM folders: which robot's log (1-5). Default 1.",
+        show_default=False,
+        rich_help_panel=PANEL,
+    ),
+]
+IgnoreIds = Annotated[
+    bool,
+    typer.Option(
+        "--ignore-ids",
+        help="Treat landmark ids as unknown: the filter associates observations itself.",
         rich_help_panel=PANEL,
     ),
 ]
@@ -119,6 +139,9 @@ OdomTopic = Annotated[str | None, _topic("--odom-topic", "Odometry or Twist topi
 GtTopic = Annotated[
     str | None, _topic("--gt-topic", "Ground-truth pose topic (PoseStamped, Odometry, ...)")
 ]
+LandmarkTopic = Annotated[
+    str | None, _topic("--landmark-topic", "Landmark observation topic (range-bearing)")
+]
 GtFrame = Annotated[
     str | None,
     typer.Option(
@@ -145,12 +168,15 @@ class SourceOptions:
     cy: float | None = None
     undistort: bool = False
     strict: bool = False
+    robot: int | None = None
+    ignore_ids: bool = False
     rgb_topic: str | None = None
     depth_topic: str | None = None
     camera_info_topic: str | None = None
     odom_topic: str | None = None
     gt_topic: str | None = None
     gt_frame: str | None = None
+    landmark_topic: str | None = None
 
     @classmethod
     def pick(cls, params: dict[str, Any]) -> SourceOptions:

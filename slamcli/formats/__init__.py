@@ -7,18 +7,36 @@ from typing import Any
 
 from slamcli.errors import ConfigError, InputError, UnknownFormatError
 from slamcli.formats.base import Frame, ReadStats, Source, SourceInfo, StreamInfo
+from slamcli.formats.landmarks import LandmarkWorldSource, MrclamSource, VictoriaParkSource
 from slamcli.formats.mcap.source import McapSource
 from slamcli.formats.tum_rgbd import TumRgbdSource
 
-SOURCES: dict[str, Any] = {"tum": TumRgbdSource, "mcap": McapSource}
-"""Source classes by format name; each has ``sniff(path) -> bool`` and ``open(path, **options)``."""
+SOURCES: dict[str, Any] = {
+    "tum": TumRgbdSource,
+    "mcap": McapSource,
+    "mrclam": MrclamSource,
+    "victoria": VictoriaParkSource,
+    "landmarks": LandmarkWorldSource,
+}
+"""Source classes by format name; each has ``sniff(path) -> bool`` and ``open(path, **options)``.
+
+The sniffers look at disjoint things (TUM: rgb.txt/depth.txt; MCAP: suffix or magic; MRCLAM:
+Barcodes.dat and RobotN_Odometry.dat; Victoria Park: the first record's keyword; synth
+landmarks: odometry.csv and measurements.csv), so the order only matters for odd mixtures."""
+
+_LAYOUTS = (
+    "a TUM RGB-D folder has rgb.txt and depth.txt; an MRCLAM folder Barcodes.dat and "
+    "RobotN_Odometry.dat; a 'slamcli synth landmarks' folder odometry.csv and measurements.csv; "
+    "an MCAP log starts with the MCAP magic; a Victoria Park file has ODOMETRY and LANDMARK lines"
+)
 
 
 def open_source(path: str | Path, format: str = "auto", **options: Any) -> Source:
     """Open an input log as a :class:`Source`.
 
     ``format="auto"`` sniffs cheaply (suffix, magic bytes, folder layout). Options are passed to
-    the source class (e.g. ``max_dt``, ``depth_factor``, ``camera`` for TUM folders).
+    the source class (e.g. ``max_dt``, ``depth_factor``, ``camera`` for TUM folders, ``robot``
+    and ``ignore_ids`` for MRCLAM folders).
     """
     p = Path(path)
     if not p.exists():
@@ -30,7 +48,7 @@ def open_source(path: str | Path, format: str = "auto", **options: Any) -> Sourc
     for cls in SOURCES.values():
         if cls.sniff(p):
             return _open(cls, p, options)
-    raise UnknownFormatError(p, sorted(SOURCES), "a TUM RGB-D folder has rgb.txt and depth.txt")
+    raise UnknownFormatError(p, sorted(SOURCES), _LAYOUTS)
 
 
 def _open(cls: Any, path: Path, options: dict[str, Any]) -> Source:

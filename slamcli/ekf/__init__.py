@@ -1,0 +1,1 @@
+"""EKF landmark SLAM: the filter, data association and map management."""

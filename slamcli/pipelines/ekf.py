@@ -1,0 +1,587 @@
+"""``slamcli run ekf``: EKF landmark SLAM from odometry and range-bearing observations.
+
+Frames arrive in time order. An :class:`~slamcli.types.OdometryFrame` with (v, ω) sets the
+control applied until the next odometry stamp (the robot is first moved to the new stamp with the
+previous control); one with only a pose contributes the relative motion since the previous pose.
+A :class:`~slamcli.types.LandmarkFrame` moves the robot to its stamp and updates the filter with
+each observation.
+
+**Landmarks with ids** (known correspondences) are updated when the innovation passes the χ²
+gate. A new id becomes a landmark once ``promote_after`` of its observations agree with each
+other, unless they agree with a landmark already mapped under another id: barcode misreads come
+in short bursts, and a burst must not create a landmark. **Observations without ids** are
+paired by nearest neighbour or JCBB (``association``); one far outside every gate starts a
+tentative landmark, promoted after ``promote_after`` pairings, deleted when it is predicted
+visible but missed ``prune_tentative_misses`` times first. Confirmed landmarks that are
+predicted visible and keep being missed (``prune_misses`` misses, more than ``prune_miss_ratio``
+of their chances) are deleted too. Visibility is the envelope of ranges and bearings seen so far.
+
+**Keeping the filter honest.** Wheel odometry is often the commanded velocity; its errors are
+proportional to speed and turn rate, so the control noise grows with them, and a floor on the
+heading noise keeps the heading uncertainty growing while the robot stands or drives straight.
+When ``lockout_after`` observations of known landmarks in a row fail the gate, the filter has
+become over-confident: the robot's pose covariance is inflated (``recovery_sigma_*``) and the
+scan is tried again; each such recovery is counted.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.config import setting
+from slamcli.ekf.association import UNMATCHED, Candidates, jcbb, nearest_neighbour
+from slamcli.ekf.filter import LandmarkEkf, arc_step, inverse_observation
+from slamcli.errors import PipelineError
+from slamcli.geometry.planar import planar_to_se3, se3_to_planar, wrap_angle
+from slamcli.types import LandmarkFrame, LandmarkMap, OdometryFrame, SlamResult, Trajectory
+
+log = logging.getLogger(__name__)
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class EkfConfig:
+    """Settings of :class:`EkfSlam`. Lengths in metres, angles in degrees, times in seconds.
+
+    Attributes:
+        start: where the robot starts: ``groundtruth`` (the log's ground-truth pose at its
+            first frame, when it has one) or ``origin``.
+        v_noise_speed, v_noise_turn: speed noise per m/s of speed and per rad/s of turn rate,
+            as a density per √s (the error of commanded velocities grows with them).
+        w_noise_speed, w_noise_turn: turn-rate noise per m/s and per rad/s, per √s.
+        v_noise_floor: speed noise density when standing, m/s/√s.
+        heading_noise_floor: turn-rate noise density that is always there, deg/s/√s.
+        spot_turn_noise, spot_speed: turn-rate noise per rad/s of commanded turn rate when
+            turning on the spot (speed below ``spot_speed``), where wheels often slip or stick.
+        step_noise_rel, step_noise_floor, step_heading_noise: noise of relative-pose odometry:
+            a fraction of each step's length, a floor in m, and degrees per metre travelled.
+        range_sigma, range_sigma_rel: range noise: a constant (m) plus a fraction of the range.
+        bearing_sigma: bearing noise, deg.
+        iterations: linearisations of each update (1 = the plain EKF; more = the iterated
+            EKF, which copes better when the heading is uncertain).
+        jacobians: ``first-estimates`` evaluates the measurement Jacobians at each landmark's
+            first estimate and the robot's predicted position, and the motion Jacobians between
+            predicted positions (the first-estimates EKF of Huang, Mourikis and Roumeliotis), so
+            that observing only landmarks mapped from the current pose cannot shrink the heading
+            uncertainty, a known cause of over-confidence; ``current`` is the textbook EKF
+            (and allows ``iterations`` > 1).
+        gate_prob: χ² probability of the association and update gate (2 degrees of freedom).
+        new_landmark_prob: an observation without id starts a landmark only when it lies
+            outside this χ² probability of every landmark.
+        association: pairing of observations without ids: ``nn`` or ``jcbb``.
+        promote_after: pairings before a new landmark without id counts.
+        promote_after_known: agreeing observations before a new id becomes a landmark (more
+            than a burst of misread codes lasts).
+        reinit_after: a landmark whose observations fail the gate this many times in a row
+            while other landmarks pass is placed anew from its latest observations (it was
+            mapped from misread codes).
+        prune_tentative_misses: a tentative landmark missed this often while predicted visible
+            is deleted.
+        prune_misses, prune_miss_ratio: a confirmed landmark without id missed at least this
+            often, and in more than this share of its chances, is deleted.
+        max_landmarks: cap on the landmark count; further new landmarks are refused.
+        lockout_after: consecutive gate rejections of known landmarks that trigger a recovery.
+        recovery_sigma_m, recovery_sigma_deg: standard deviations added to the robot's position
+            and heading in a recovery.
+        initial_sigma_m, initial_sigma_deg: uncertainty of the starting pose.
+    """
+
+    start: str = setting("groundtruth", choices=("groundtruth", "origin"))
+    v_noise_speed: float = setting(0.15, min=0.0, unit="1/√s")
+    v_noise_turn: float = setting(0.05, min=0.0, unit="m/rad/√s")
+    w_noise_speed: float = setting(0.15, min=0.0, unit="rad/m/√s")
+    w_noise_turn: float = setting(0.15, min=0.0, unit="1/√s")
+    v_noise_floor: float = setting(0.005, min=0.0, unit="m/s/√s")
+    spot_turn_noise: float = setting(1.0, min=0.0, unit="1/√s")
+    spot_speed: float = setting(0.05, min=0.0, unit="m/s")
+    heading_noise_floor: float = setting(1.0, min=0.0, unit="deg/s/√s")
+    step_noise_rel: float = setting(0.05, min=0.0)
+    step_noise_floor: float = setting(0.01, min=0.0, unit="m")
+    step_heading_noise: float = setting(1.0, min=0.0, unit="deg/m")
+    range_sigma: float = setting(0.1, gt=0.0, unit="m")
+    range_sigma_rel: float = setting(0.02, min=0.0)
+    bearing_sigma: float = setting(3.0, gt=0.0, unit="deg")
+    gate_prob: float = setting(0.999, gt=0.5, lt=1.0)
+    iterations: int = setting(3, min=1)
+    jacobians: str = setting("first-estimates", choices=("first-estimates", "current"))
+    new_landmark_prob: float = setting(0.99999, gt=0.5, lt=1.0)
+    association: str = setting("nn", choices=("nn", "jcbb"))
+    promote_after: int = setting(3, min=1)
+    promote_after_known: int = setting(6, min=1)
+    reinit_after: int = setting(6, min=1)
+    prune_tentative_misses: int = setting(3, min=1)
+    prune_misses: int = setting(10, min=1)
+    prune_miss_ratio: float = setting(0.8, gt=0.0, max=1.0)
+    max_landmarks: int = setting(2000, min=1)
+    lockout_after: int = setting(6, min=1)
+    recovery_sigma_m: float = setting(0.1, min=0.0, unit="m")
+    recovery_sigma_deg: float = setting(10.0, min=0.0, unit="deg")
+    initial_sigma_m: float = setting(0.01, gt=0.0, unit="m")
+    initial_sigma_deg: float = setting(1.0, gt=0.0, unit="deg")
+
+
+@dataclass
+class _Track:
+    """Book-keeping of one landmark slot."""
+
+    ident: int
+    confirmed: bool
+    known: bool = False
+    hits: int = 1
+    misses: int = 0
+    rejected_streak: int = 0
+
+
+@dataclass
+class _Pending:
+    """Observations of an id not yet mapped, as world positions with covariances."""
+
+    points: list[F64] = field(default_factory=list)
+    covs: list[F64] = field(default_factory=list)
+
+
+class EkfSlam:
+    """EKF landmark SLAM pipeline (see the module docstring)."""
+
+    name = "ekf"
+    consumes = ("odometry", "landmarks")
+    config_class = EkfConfig
+
+    def __init__(self, config: EkfConfig | None = None) -> None:
+        self.config = config or EkfConfig()
+        c = self.config
+        self._gate = chi2_quantile(c.gate_prob, 2)
+        self._new_gate = chi2_quantile(c.new_landmark_prob, 2)
+        self._joint_gates = np.array(
+            [0.0] + [chi2_quantile(c.gate_prob, 2 * k) for k in range(1, 64)]
+        )
+        self._ekf: LandmarkEkf | None = None
+        self._start: F64 | None = None
+        self._t_ns: int | None = None
+        self._control: tuple[float, float] | None = None
+        self._odom_pose: F64 | None = None
+        self._dr: F64 | None = None
+        self._tracks: list[_Track] = []
+        self._by_id: dict[int, int] = {}
+        self._pending: dict[int, _Pending] = {}
+        self._next_id = 0
+        self._max_range = 0.0
+        self._max_bearing = 0.0
+        self._reject_streak = 0
+        self._with_id = 0
+        self._without_id = 0
+        self._stamps: list[int] = []
+        self._poses: list[F64] = []
+        self._covs: list[F64] = []
+        self._dr_poses: list[F64] = []
+        self._nis: list[tuple[int, float]] = []
+        self._lm_count: list[tuple[int, int]] = []
+        self.counts: dict[str, int] = {
+            "odometry": 0,
+            "observations": 0,
+            "updates": 0,
+            "rejected_by_gate": 0,
+            "landmarks_new": 0,
+            "landmarks_merged": 0,
+            "landmarks_pruned": 0,
+            "landmarks_reinitialised": 0,
+            "ambiguous": 0,
+            "capped": 0,
+            "recoveries": 0,
+        }
+
+    # -- set-up -----------------------------------------------------------------------------
+
+    def set_start(self, pose: F64 | None) -> None:
+        """The starting pose (x, y, yaw), e.g. ground truth at the first frame; None = origin."""
+        if self.config.start == "groundtruth" and pose is not None:
+            self._start = np.asarray(pose, dtype=np.float64)
+
+    def _filter(self) -> LandmarkEkf:
+        if self._ekf is None:
+            c = self.config
+            pose = self._start if self._start is not None else np.zeros(3)
+            cov = np.diag(
+                [c.initial_sigma_m**2, c.initial_sigma_m**2, np.radians(c.initial_sigma_deg) ** 2]
+            )
+            self._ekf = LandmarkEkf(pose, cov, first_estimates=c.jacobians == "first-estimates")
+            self._dr = pose.copy()
+        return self._ekf
+
+    # -- frames -----------------------------------------------------------------------------
+
+    def process(self, frame: Any) -> None:
+        if isinstance(frame, OdometryFrame):
+            self._odometry(frame)
+        elif isinstance(frame, LandmarkFrame):
+            self._observations(frame)
+        else:
+            raise PipelineError(
+                f"the ekf pipeline takes odometry and landmark frames, not {type(frame).__name__}"
+            )
+
+    def _advance(self, stamp_ns: int) -> None:
+        """Move the robot to ``stamp_ns`` with the current control."""
+        ekf = self._filter()
+        if self._t_ns is not None and self._control is not None and stamp_ns > self._t_ns:
+            dt = (stamp_ns - self._t_ns) * 1e-9
+            v, w = self._control
+            ekf.predict_velocity(v, w, dt, self._control_psd(v, w))
+            assert self._dr is not None
+            dr = self._dr
+            dr[0], dr[1], dr[2] = arc_step(dr[0], dr[1], dr[2], v, w, dt)[:3]
+        if self._t_ns is None or stamp_ns > self._t_ns:
+            self._t_ns = stamp_ns
+
+    def _control_psd(self, v: float, w: float) -> F64:
+        c = self.config
+        av, aw = abs(v), abs(w)
+        sv = c.v_noise_speed * av + c.v_noise_turn * aw + c.v_noise_floor
+        turn = c.spot_turn_noise if av < c.spot_speed else c.w_noise_turn
+        sw = c.w_noise_speed * av + turn * aw + np.radians(c.heading_noise_floor)
+        return np.array([sv * sv, sw * sw])
+
+    def _odometry(self, frame: OdometryFrame) -> None:
+        self.counts["odometry"] += 1
+        if frame.v is not None and frame.omega is not None:
+            self._advance(frame.stamp_ns)
+            self._control = (float(frame.v), float(frame.omega))
+        elif frame.world_from_body is not None:
+            ekf = self._filter()
+            pose = se3_to_planar(frame.world_from_body)[0]
+            if self._odom_pose is not None:
+                delta = _relative(self._odom_pose, pose)
+                ekf.predict_relative(delta, self._step_cov(delta))
+                assert self._dr is not None
+                from slamcli.ekf.filter import relative_motion
+
+                self._dr = relative_motion(self._dr, delta)[0]
+            self._odom_pose = pose
+            self._t_ns = frame.stamp_ns if self._t_ns is None else max(self._t_ns, frame.stamp_ns)
+        else:
+            raise PipelineError(
+                f"odometry at {frame.stamp_ns * 1e-9:.3f} s has neither (v, omega) nor a pose"
+            )
+        self._record(frame.stamp_ns)
+
+    def _step_cov(self, delta: F64) -> F64:
+        c = self.config
+        dist = float(np.hypot(delta[0], delta[1]))
+        s = c.step_noise_rel * dist + c.step_noise_floor
+        sh = np.radians(c.step_heading_noise) * dist + c.step_noise_rel * abs(float(delta[2]))
+        sh += np.radians(c.heading_noise_floor) * 0.1
+        return np.diag([s * s, s * s, sh * sh])
+
+    def _r_cov(self, rng: float) -> F64:
+        c = self.config
+        sr = c.range_sigma + c.range_sigma_rel * rng
+        sb = np.radians(c.bearing_sigma)
+        return np.diag([sr * sr, sb * sb])
+
+    def _observations(self, frame: LandmarkFrame) -> None:
+        self._advance(frame.stamp_ns)
+        ekf = self._filter()
+        ids = np.asarray(frame.ids, dtype=np.int64)
+        zs = np.stack([frame.ranges_m, frame.bearings_rad], axis=1).astype(np.float64)
+        ok = np.isfinite(zs).all(axis=1) & (zs[:, 0] > 0)
+        ids, zs = ids[ok], zs[ok]
+        zs[:, 1] = wrap_angle(zs[:, 1])
+        self.counts["observations"] += len(zs)
+        if len(zs):
+            self._max_range = max(self._max_range, float(zs[:, 0].max()))
+            self._max_bearing = max(self._max_bearing, float(np.abs(zs[:, 1]).max()))
+        r_covs = np.stack([self._r_cov(z[0]) for z in zs]) if len(zs) else np.empty((0, 2, 2))
+        seen: set[int] = set()
+        known = ids >= 0
+        self._with_id += int(known.sum())
+        self._without_id += int((~known).sum())
+        if known.any():
+            seen |= self._known(ids[known], zs[known], r_covs[known], frame.stamp_ns)
+        if (~known).any():
+            seen |= self._unknown(zs[~known], r_covs[~known], frame.stamp_ns)
+        self._misses(seen)
+        if ekf.count and self.counts["updates"] % 200 == 0:
+            ekf.symmetrize()
+        self._record(frame.stamp_ns)
+        self._lm_count.append((frame.stamp_ns, sum(t.confirmed for t in self._tracks)))
+
+    # -- known correspondences --------------------------------------------------------------
+
+    def _known(self, ids: NDArray[np.int64], zs: F64, r_covs: F64, stamp_ns: int) -> set[int]:
+        ekf = self._filter()
+        seen: set[int] = set()
+        order = np.argsort(ids, kind="stable")
+        retry: list[int] = []
+        for k in order:
+            ident = int(ids[k])
+            slot = self._by_id.get(ident)
+            if slot is None:
+                self._pending_observation(ident, zs[k], r_covs[k])
+                continue
+            inn = ekf.innovation(slot, zs[k], r_covs[k])
+            track = self._tracks[slot]
+            if inn.d2 < self._gate:
+                self._accept(inn, stamp_ns, zs[k], r_covs[k])
+                track.hits += 1
+                track.rejected_streak = 0
+                self._pending.pop(ident, None)
+                self._reject_streak = 0
+                seen.add(slot)
+            else:
+                self.counts["rejected_by_gate"] += 1
+                track.rejected_streak += 1
+                self._reject_streak += 1
+                retry.append(k)
+                pend = self._pending.setdefault(ident, _Pending())
+                lm, gr, gz = inverse_observation(ekf.pose, zs[k])
+                pend.points.append(lm)
+                pend.covs.append(gr @ ekf.pose_cov @ gr.T + gz @ r_covs[k] @ gz.T)
+                if (
+                    track.rejected_streak >= self.config.reinit_after
+                    and self._reject_streak < track.rejected_streak
+                ):
+                    self._reinit(slot, zs[k], r_covs[k])
+                    retry.pop()
+        if retry and self._reject_streak >= self.config.lockout_after:
+            self._recover()
+            for k in retry:
+                slot = self._by_id[int(ids[k])]
+                inn = ekf.innovation(slot, zs[k], r_covs[k])
+                if inn.d2 < self._gate:
+                    self._accept(inn, stamp_ns, zs[k], r_covs[k])
+                    self._tracks[slot].hits += 1
+                    self._tracks[slot].rejected_streak = 0
+                    seen.add(slot)
+        return seen
+
+    def _pending_observation(self, ident: int, z: F64, r_cov: F64) -> None:
+        """Collect observations of an unmapped id; map it once enough of them agree."""
+        ekf = self._filter()
+        lm, gr, gz = inverse_observation(ekf.pose, z)
+        cov = gr @ ekf.pose_cov @ gr.T + gz @ r_cov @ gz.T
+        pend = self._pending.setdefault(ident, _Pending())
+        pend.points.append(lm)
+        pend.covs.append(cov)
+        need = self.config.promote_after_known
+        pts = np.array(pend.points[-need:])
+        covs = np.array(pend.covs[-need:])
+        if len(pts) < need:
+            return
+        # The latest observations must agree with their mean.
+        mean = pts.mean(axis=0)
+        d2 = np.einsum(
+            "ni,ni->n", pts - mean, np.linalg.solve(covs, (pts - mean)[:, :, None])[..., 0]
+        )
+        if np.any(d2 > self._gate):
+            return
+        if len(self._tracks) >= self.config.max_landmarks:
+            self.counts["capped"] += 1
+            return
+        slot = ekf.add_landmark(z, r_cov)
+        self._tracks.append(_Track(ident, confirmed=True, known=True, hits=len(pts)))
+        self._by_id[ident] = slot
+        self.counts["landmarks_new"] += 1
+        del self._pending[ident]
+
+    def _reinit(self, slot: int, z: F64, r_cov: F64) -> None:
+        """Place a landmark anew from its latest observation (its first ones were misreads)."""
+        ekf = self._filter()
+        track = self._tracks[slot]
+        pend = self._pending.pop(track.ident, _Pending())
+        pts = np.array(pend.points[-self.config.reinit_after :])
+        covs = np.array(pend.covs[-self.config.reinit_after :])
+        mean = pts.mean(axis=0)
+        d = pts - mean
+        if np.any(
+            np.einsum("ni,ni->n", d, np.linalg.solve(covs, d[:, :, None])[..., 0]) > self._gate
+        ):
+            return
+        self._remove(slot, pruned=False)
+        new = ekf.add_landmark(z, r_cov)
+        self._tracks.append(_Track(track.ident, confirmed=True, known=True, hits=1))
+        self._by_id[track.ident] = new
+        self.counts["landmarks_reinitialised"] += 1
+
+    def _recover(self) -> None:
+        c = self.config
+        ekf = self._filter()
+        sm, sh = c.recovery_sigma_m, np.radians(c.recovery_sigma_deg)
+        ekf.inflate_pose(np.diag([sm * sm, sm * sm, sh * sh]))
+        self.counts["recoveries"] += 1
+        self._reject_streak = 0
+
+    def _accept(self, inn: Any, stamp_ns: int, z: F64, r_cov: F64) -> None:
+        ekf = self._filter()
+        if self.config.iterations > 1 and not ekf.first_estimates:
+            ekf.update_iterated(inn, z, r_cov, self.config.iterations)
+        else:
+            ekf.update(inn)
+        self.counts["updates"] += 1
+        self._nis.append((stamp_ns, inn.d2))
+
+    # -- unknown correspondences ------------------------------------------------------------
+
+    def _unknown(self, zs: F64, r_covs: F64, stamp_ns: int) -> set[int]:
+        ekf = self._filter()
+        cands = Candidates.of(ekf, zs, r_covs)
+        if self.config.association == "jcbb" and len(zs) > 1:
+            pairing = jcbb(ekf, zs, r_covs, cands, self._gate, self._joint_gates)
+        else:
+            pairing = nearest_neighbour(cands, self._gate)
+        _, nearest = cands.best()
+        seen: set[int] = set()
+        # Updates first (all innovations were computed before any of them), then new landmarks.
+        for i in np.argsort(nearest, kind="stable"):
+            slot = int(pairing[i])
+            if slot == UNMATCHED:
+                continue
+            inn = ekf.innovation(slot, zs[i], r_covs[i])
+            if inn.d2 < self._gate:
+                self._accept(inn, stamp_ns, zs[i], r_covs[i])
+                track = self._tracks[slot]
+                track.hits += 1
+                if not track.confirmed and track.hits >= self.config.promote_after:
+                    track.confirmed = True
+                seen.add(slot)
+            else:
+                self.counts["rejected_by_gate"] += 1
+        for i in range(len(zs)):
+            if pairing[i] != UNMATCHED:
+                continue
+            if nearest[i] > self._new_gate:
+                if len(self._tracks) >= self.config.max_landmarks:
+                    self.counts["capped"] += 1
+                    continue
+                slot = ekf.add_landmark(zs[i], r_covs[i])
+                self._tracks.append(_Track(self._next_id, confirmed=self.config.promote_after <= 1))
+                self._next_id += 1
+                seen.add(slot)
+                self.counts["landmarks_new"] += 1
+            else:
+                self.counts["ambiguous"] += 1
+        return seen
+
+    def _misses(self, seen: set[int]) -> None:
+        """Count misses of landmarks predicted visible; delete the ones that keep missing."""
+        ekf = self._filter()
+        if not ekf.count or self._max_range <= 0:
+            return
+        lm = ekf.landmarks()
+        pose = ekf.pose
+        d = lm - pose[:2]
+        rng = np.hypot(d[:, 0], d[:, 1])
+        brg = np.abs(wrap_angle(np.arctan2(d[:, 1], d[:, 0]) - pose[2]))
+        visible = (rng < 0.8 * self._max_range) & (brg < 0.8 * self._max_bearing)
+        c = self.config
+        doomed: list[int] = []
+        for slot in np.nonzero(visible)[0].tolist():
+            track = self._tracks[slot]
+            if slot in seen or track.known:
+                continue
+            track.misses += 1
+            if not track.confirmed:
+                if track.misses >= c.prune_tentative_misses:
+                    doomed.append(slot)
+            elif track.misses >= c.prune_misses and track.misses > c.prune_miss_ratio * (
+                track.misses + track.hits
+            ):
+                doomed.append(slot)
+        for slot in sorted(doomed, reverse=True):
+            self._remove(slot)
+
+    def _remove(self, slot: int, pruned: bool = True) -> None:
+        ekf = self._filter()
+        last = ekf.count - 1
+        ekf.remove_landmark(slot)
+        self._tracks[slot] = self._tracks[last]
+        self._tracks.pop()
+        if slot < len(self._tracks) and self._tracks[slot].known:
+            self._by_id[self._tracks[slot].ident] = slot
+        if pruned:
+            self.counts["landmarks_pruned"] += 1
+
+    # -- output -----------------------------------------------------------------------------
+
+    def _record(self, stamp_ns: int) -> None:
+        ekf = self._filter()
+        assert self._dr is not None
+        if self._stamps and self._stamps[-1] >= stamp_ns:
+            self._poses[-1] = ekf.pose.copy()
+            self._covs[-1] = ekf.pose_cov.copy()
+            self._dr_poses[-1] = self._dr.copy()
+            return
+        self._stamps.append(stamp_ns)
+        self._poses.append(ekf.pose.copy())
+        self._covs.append(ekf.pose_cov.copy())
+        self._dr_poses.append(self._dr.copy())
+
+    def finish(self) -> SlamResult:
+        if not self._stamps:
+            raise PipelineError("the log gave the ekf pipeline no odometry or observations")
+        ekf = self._filter()
+        c = self.config
+        stamps = np.asarray(self._stamps, dtype=np.int64)
+        poses = np.asarray(self._poses)
+        keep = [i for i, t in enumerate(self._tracks) if t.confirmed]
+        lm_ids = np.array([self._tracks[i].ident for i in keep], dtype=np.int64)
+        xy = ekf.landmarks()[keep] if keep else np.empty((0, 2))
+        covs = ekf.landmark_covs()[keep] if keep else np.empty((0, 2, 2))
+        order = np.argsort(lm_ids, kind="stable")
+        nis = np.array(self._nis, dtype=np.float64).reshape(-1, 2)
+        if len(nis):
+            nis[:, 0] *= 1e-9
+        counts = dict(self.counts)
+        counts["landmarks"] = len(keep)
+        counts["landmarks_tentative"] = len(self._tracks) - len(keep)
+        metrics: dict[str, Any] = {
+            "association": (
+                "mixed"
+                if self._with_id and self._without_id
+                else ("known" if self._with_id or not self._without_id else c.association)
+            )
+        }
+        if len(nis):
+            lo, hi = chi2_quantile(0.025, 2), chi2_quantile(0.975, 2)
+            metrics["nis"] = {
+                "mean": float(nis[:, 1].mean()),
+                "median": float(np.median(nis[:, 1])),
+                "dof": 2,
+                "band95": [float(lo), float(hi)],
+                "fraction_in_band": float(np.mean((nis[:, 1] >= lo) & (nis[:, 1] <= hi))),
+            }
+        series = {"nis": nis}
+        if self._lm_count:
+            lc = np.array(self._lm_count, dtype=np.float64)
+            lc[:, 0] *= 1e-9
+            series["landmarks"] = lc
+        return SlamResult(
+            trajectory=Trajectory(stamps, planar_to_se3(poses)),
+            landmarks=LandmarkMap(lm_ids[order], xy[order], covs[order]),
+            pose_covariances=np.asarray(self._covs),
+            dead_reckoning=Trajectory(stamps, planar_to_se3(np.asarray(self._dr_poses))),
+            series=series,
+            metrics=metrics,
+            counts=counts,
+        )
+
+
+def chi2_quantile(p: float, dof: int) -> float:
+    """The χ² distribution's ``p`` quantile (closed form for 2 degrees of freedom)."""
+    if dof == 2:
+        return float(-2.0 * np.log1p(-p))
+    from scipy.special import gammaincinv
+
+    return float(2.0 * gammaincinv(0.5 * dof, p))
+
+
+def _relative(a: F64, b: F64) -> F64:
+    """The pose of ``b`` in ``a``'s frame, (3,) planar."""
+    c, s = np.cos(a[2]), np.sin(a[2])
+    dx, dy = b[0] - a[0], b[1] - a[1]
+    return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[2] - a[2])])
