@@ -1,4 +1,4 @@
-"""``slamcli convert``: an RGB-D folder to an MCAP log, or a run folder to ``result.mcap``."""
+"""``slamcli convert``: RGB-D or landmark folders to MCAP logs, run folders to ``result.mcap``."""
 
 from __future__ import annotations
 
@@ -31,8 +31,8 @@ from slamcli.errors import ConfigError, DataLossError
 if TYPE_CHECKING:
     from slamcli.formats.mcap.write import McapWriteSummary
 
-HELP = """Convert a TUM RGB-D folder to an MCAP log, a run folder to a Foxglove result log, or \
-a pose topic of an MCAP log to a trajectory file.
+HELP = """Convert a TUM RGB-D folder or a landmark folder to an MCAP log, a run folder to a \
+Foxglove result log, or a pose topic of an MCAP log to a trajectory file.
 
 [bold]RGB-D folder[/] -> MCAP: colour, depth, camera info, ground truth and (ros2 only) the \
 accelerometer on /camera/color/image_raw, /camera/depth/image_raw, /camera/color/camera_info, \
@@ -42,6 +42,12 @@ CompressedImage, CameraCalibration, PoseInFrame and FrameTransform (/tf) as JSON
 official Foxglove JSON schemas. Depth 16UC1 is millimetres (rounded: TUM's 0.2 mm steps are \
 lost); 32FC1 is metres, exactly the source's values. --compress-images jpeg|png compresses \
 colour, and in the ros2 flavour 16UC1 depth as lossless "16UC1; compressedDepth png".
+
+[bold]Landmark folder[/] (odometry.csv and measurements.csv, as `slamcli synth landmarks` \
+writes) -> MCAP for `slamcli run ekf`: odometry as nav_msgs/msg/Odometry on /odom (twist = the \
+control, pose = dead reckoning), observations as slamcli.LandmarkObservations JSON on \
+/landmarks, groundtruth.tum as PoseStamped (--flavor foxglove: foxglove.PoseInFrame and /tf) \
+on /ground_truth.
 
 [bold]Run folder[/] (it has run.json) -> a log Foxglove opens: the trajectory \
 (foxglove.PoseInFrame on /slamcli/pose, world->camera on /tf), map.yaml as foxglove.Grid, \
@@ -61,6 +67,8 @@ Examples:
 [bold]slamcli convert data/rgbd_dataset_freiburg1_xyz xyz.mcap --flavor ros2[/]
 
 [bold]slamcli convert data/room room.mcap --flavor foxglove --compress-images jpeg[/]
+
+[bold]slamcli convert sample_data/landmarks landmarks.mcap[/]
 
 [bold]slamcli convert runs/demo runs/demo/result.mcap[/]
 
@@ -93,7 +101,8 @@ def convert(
     input: Annotated[
         Path,
         typer.Argument(
-            help="A TUM RGB-D folder, a run folder, or an MCAP log.", show_default=False
+            help="A TUM RGB-D folder, a landmark folder, a run folder, or an MCAP log.",
+            show_default=False,
         ),
     ],
     out: Annotated[
@@ -107,7 +116,7 @@ def convert(
         Flavor | None,
         typer.Option(
             "--flavor",
-            help="Message types for an RGB-D input: ros2 (CDR) or foxglove (JSON). "
+            help="Message types for an RGB-D or landmark input: ros2 (CDR) or foxglove (JSON). "
             "Default: ros2; run folders are always written with Foxglove schemas.",
             show_default=False,
         ),
@@ -148,7 +157,7 @@ def convert(
     gt_topic: GtTopic = None,
     gt_frame: GtFrame = None,
 ) -> None:
-    from slamcli.formats.mcap.write import is_run_dir
+    from slamcli.formats.mcap.write import is_landmark_dir, is_run_dir
 
     if out.suffix.lower() in TRAJECTORY_SUFFIXES:
         _export_trajectory(input, out, gt_topic, gt_frame, strict, force)
@@ -158,16 +167,17 @@ def convert(
             "--gt-topic/--gt-frame export a trajectory: give OUT a .tum, .txt or .kitti name"
         )
 
+    rgbd_only = {
+        "--compress-images": compress_images is not Compression.none,
+        "--depth-encoding": depth_encoding is not DepthEncoding.millimetres,
+        "--max-frames": max_frames is not None,
+    }
     if is_run_dir(input):
         from slamcli.formats.mcap.write import read_run_result, write_result_log
 
-        rgbd_only = {
-            "--flavor ros2": flavor is Flavor.ros2,
-            "--compress-images": compress_images is not Compression.none,
-            "--depth-encoding": depth_encoding is not DepthEncoding.millimetres,
-            "--max-frames": max_frames is not None,
-        }
         given = [flag for flag, used in rgbd_only.items() if used]
+        if flavor is Flavor.ros2:
+            given.insert(0, "--flavor ros2")
         if given:
             raise ConfigError(
                 f"{input}: {', '.join(given)} {'is' if len(given) == 1 else 'are'} for RGB-D "
@@ -175,6 +185,20 @@ def convert(
                 hint="a run folder is always written with Foxglove schemas; drop those options",
             )
         summary = write_result_log(out, read_run_result(input), force=force)
+        _show(summary)
+        return
+
+    if is_landmark_dir(input):
+        from slamcli.formats.mcap.write import write_landmark_log
+
+        given = [flag for flag, used in rgbd_only.items() if used]
+        if given:
+            raise ConfigError(
+                f"{input}: {', '.join(given)} {'is' if len(given) == 1 else 'are'} for RGB-D "
+                "inputs, not landmark folders",
+                hint="a landmark folder has no images; drop those options",
+            )
+        summary = write_landmark_log(out, input, flavor=(flavor or Flavor.ros2).value, force=force)
         _show(summary)
         return
 

@@ -4,7 +4,8 @@ An adapter is called as ``adapter(message, log_time_ns, topic)`` with a message 
 :func:`slamcli.formats.mcap.decode.decoder_for`: a ``rosbags`` dataclass (ROS 1 and ROS 2), a
 protobuf message or a JSON ``dict`` (Foxglove schemas). It returns one record:
 :class:`ImageRecord`, :class:`CameraInfoRecord`, :class:`PoseRecord`, :class:`TransformRecord`,
-:class:`TwistRecord` or :class:`~slamcli.types.ImuFrame`.
+:class:`TwistRecord`, :class:`~slamcli.types.ImuFrame` or :class:`~slamcli.types.LandmarkFrame`
+(``slamcli.LandmarkObservations``, see :mod:`slamcli.formats.mcap.observations`).
 
 Stamps come from the message header (``sec`` + ``nanosec``) or Foxglove ``timestamp``; where that
 is absent or zero the log time is used. Images come out as owned, C-contiguous arrays: RGB
@@ -23,6 +24,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.formats.mcap.decode import DecodeError, normalize_ros_type
+from slamcli.formats.mcap.observations import SCHEMA_NAME as LANDMARK_SCHEMA_NAME
+from slamcli.formats.mcap.observations import landmark_frame
 from slamcli.formats.mcap.records import (
     CameraInfoRecord,
     ImageRecord,
@@ -31,12 +34,18 @@ from slamcli.formats.mcap.records import (
     TwistRecord,
 )
 from slamcli.geometry import make_pose, quat_xyzw_to_matrix
-from slamcli.types import ImuFrame, PinholeCamera
+from slamcli.types import ImuFrame, LandmarkFrame, PinholeCamera
 
 log = logging.getLogger(__name__)
 
 AdapterRecord = (
-    ImageRecord | CameraInfoRecord | PoseRecord | TransformRecord | TwistRecord | ImuFrame
+    ImageRecord
+    | CameraInfoRecord
+    | PoseRecord
+    | TransformRecord
+    | TwistRecord
+    | ImuFrame
+    | LandmarkFrame
 )
 Adapter = Callable[[Any, int, str], AdapterRecord]
 """``adapter(message, log_time_ns, topic) -> record``."""
@@ -513,6 +522,7 @@ ADAPTERS: dict[str, Adapter] = {
     "foxglove.PoseInFrame": _foxglove_pose_in_frame,
     "foxglove.FrameTransform": _foxglove_frame_transform,
     "foxglove.FrameTransforms": _foxglove_frame_transforms,
+    LANDMARK_SCHEMA_NAME: landmark_frame,
 }
 """Adapters keyed by normalised schema name (see :func:`normalize_schema_name`)."""
 

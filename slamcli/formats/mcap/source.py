@@ -1,9 +1,10 @@
 """MCAP logs as a :class:`~slamcli.formats.base.Source`: topic selection, sync, ground truth.
 
-Topics are chosen per role (colour, depth, camera, odometry, ground truth, IMU): a flag names
-one, otherwise the one topic of the right type is taken; with none or several the source stops
-with :class:`~slamcli.errors.TopicNotFoundError` listing the candidates. Colour and depth are
-told apart by the encoding of their first message (16UC1/32FC1/compressedDepth = depth).
+Topics are chosen per role (colour, depth, camera, odometry, landmarks, ground truth, IMU): a
+flag names one, otherwise the one topic of the right type is taken; with none or several the
+source stops with :class:`~slamcli.errors.TopicNotFoundError` listing the candidates. Colour
+and depth are told apart by the encoding of their first message (16UC1/32FC1/compressedDepth =
+depth).
 
 The camera comes from, in this order: ``--camera-info-topic``; the ``camera_info`` topic beside
 the colour topic (``/cam/color/image_raw`` -> ``/cam/color/camera_info``); a calibration topic
@@ -15,14 +16,27 @@ Colour and depth are paired with the TUM ``associate.py`` rule (greedy by smalle
 (a gap of at least ``max_dt`` in the merged stamps behind both streams' newest stamps), so
 memory stays bounded by a handful of frames.
 
+Odometry (``nav_msgs/msg/Odometry``: v = twist.linear.x, omega = twist.angular.z, and the
+pose; ``Twist``/``TwistStamped``: v and omega) and landmark observations
+(``slamcli.LandmarkObservations``, see :mod:`slamcli.formats.mcap.observations`) come out in
+the order of their own stamps, odometry first at equal stamps, even where a detector's messages
+were logged late: a frame waits until every stream read has passed its stamp (at most
+``_ORDER_BUFFER`` frames wait).
+
 Ground truth comes from a pose topic (``--gt-topic``) or from tf (``--gt-frame``: the pose of
-that frame in the root of its tree); after frames have been read it is interpolated (SLERP) to
-the colour stamps.
+that frame in the root of its tree). Before any frame has been read, :meth:`groundtruth` returns
+the poses as recorded. After frames have been read it is interpolated (SLERP) to the stamps of
+the frames read, so that it pairs one to one with an estimate made from them: the colour stamps
+when images were read; otherwise (a log without images, e.g. odometry and landmarks for the
+EKF) the odometry and landmark stamps. Stamps outside the ground truth's time span are left
+out. With ground truth, :meth:`start_pose` is its planar pose at the first odometry or landmark
+stamp, for pipelines that start there instead of at the origin.
 """
 
 from __future__ import annotations
 
 import bisect
+import heapq
 import itertools
 import logging
 from collections.abc import Callable, Collection, Iterator
@@ -30,11 +44,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, InputError, TopicNotFoundError
 from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
 from slamcli.formats.mcap.adapters import Adapter, adapter_for, normalize_schema_name
 from slamcli.formats.mcap.decode import DecodeError, decoder_for
+from slamcli.formats.mcap.observations import SCHEMA_NAME as LANDMARK_SCHEMA_NAME
 from slamcli.formats.mcap.reader import McapLog
 from slamcli.formats.mcap.records import (
     CameraInfoRecord,
@@ -45,11 +61,14 @@ from slamcli.formats.mcap.records import (
     TwistRecord,
 )
 from slamcli.formats.mcap.tf import TfBuffer
+from slamcli.formats.text import format_stamp
 from slamcli.formats.tum_rgbd import associate_stamps
-from slamcli.geometry import interpolate_poses
+from slamcli.geometry import interpolate_planar, interpolate_poses, se3_to_planar
 from slamcli.types import (
     ImageFrame,
     ImuFrame,
+    LandmarkFrame,
+    LandmarkMap,
     OdometryFrame,
     PinholeCamera,
     ProgressFn,
@@ -85,9 +104,17 @@ TF_SCHEMAS = frozenset(
     {"tf2_msgs/msg/TFMessage", "foxglove.FrameTransform", "foxglove.FrameTransforms"}
 )
 IMU_SCHEMAS = frozenset({"sensor_msgs/msg/Imu"})
+LANDMARK_SCHEMAS = frozenset({LANDMARK_SCHEMA_NAME})
+FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu")
 
 _FORCE_FLUSH = 32
 """Buffered images at which pairing is settled even without a safe gap (very dense streams)."""
+START_POSE_MAX_WAIT_S = 30.0
+"""``start_pose`` takes the first ground-truth pose if it is at most this late (the robot has
+barely moved in a log's first seconds); as :mod:`slamcli.formats.landmarks` does."""
+_ORDER_BUFFER = 10_000
+"""Odometry/landmark frames held for stamp order at most; beyond it the oldest goes out (a
+stream that stopped, or stamps on clocks far apart)."""
 
 
 class McapSource(SourceBase):
@@ -95,8 +122,8 @@ class McapSource(SourceBase):
 
     Args:
         path: the ``.mcap`` file.
-        rgb_topic, depth_topic, camera_info_topic, odom_topic, gt_topic: topic choices;
-            None picks the one topic of the right type when it is needed.
+        rgb_topic, depth_topic, camera_info_topic, odom_topic, landmark_topic, gt_topic: topic
+            choices; None picks the one topic of the right type when it is needed.
         gt_frame: take ground truth from tf as the pose of this frame in its tree's root.
         max_dt, dt_offset: colour/depth pairing tolerance and depth stamp offset, seconds.
         camera, fx, fy, cx, cy: camera when the log has no calibration topic (see
@@ -119,6 +146,7 @@ class McapSource(SourceBase):
         "depth_topic",
         "camera_info_topic",
         "odom_topic",
+        "landmark_topic",
         "gt_topic",
         "gt_frame",
     )
@@ -139,6 +167,7 @@ class McapSource(SourceBase):
         depth_topic: str | None = None,
         camera_info_topic: str | None = None,
         odom_topic: str | None = None,
+        landmark_topic: str | None = None,
         gt_topic: str | None = None,
         gt_frame: str | None = None,
     ) -> None:
@@ -158,6 +187,7 @@ class McapSource(SourceBase):
             "depth": depth_topic,
             "camera": camera_info_topic,
             "odometry": odom_topic,
+            "landmarks": landmark_topic,
             "groundtruth": gt_topic,
         }
         self.gt_frame = gt_frame
@@ -169,6 +199,7 @@ class McapSource(SourceBase):
         self._chosen: dict[str, str | None] = {}
         self._camera: tuple[PinholeCamera, str] | None = None
         self._frame_stamps: list[int] = []
+        self._motion_stamps: list[int] = []
         self._decoders: dict[str, tuple[Callable[[bytes], Any], Adapter]] = {}
 
     @classmethod
@@ -226,7 +257,8 @@ class McapSource(SourceBase):
         return self.log.stats()
 
     def topic(self, role: str, required: bool = True) -> str | None:
-        """The topic used for ``role`` (rgb, depth, camera, odometry, groundtruth, imu)."""
+        """The topic used for ``role`` (rgb, depth, camera, odometry, landmarks, groundtruth,
+        imu)."""
         if role in self._chosen:
             return self._chosen[role]
         schemas, flag = {
@@ -234,6 +266,7 @@ class McapSource(SourceBase):
             "depth": (IMAGE_SCHEMAS, "--depth-topic"),
             "camera": (CAMERA_SCHEMAS, "--camera-info-topic"),
             "odometry": (ODOM_SCHEMAS, "--odom-topic"),
+            "landmarks": (LANDMARK_SCHEMAS, "--landmark-topic"),
             "groundtruth": (POSE_SCHEMAS, "--gt-topic"),
             "imu": (IMU_SCHEMAS, "a single Imu topic"),
         }[role]
@@ -342,12 +375,15 @@ class McapSource(SourceBase):
             try:
                 rec = self._adapt(raw.channel, raw.data, raw.log_time_ns)
             except DecodeError as exc:
-                if self.strict or raw.channel.topic not in self._decoders:
-                    raise
+                if raw.channel.topic not in self._decoders:
+                    raise  # the channel cannot be decoded at all: its error names the channel
+                where = f"log time {format_stamp(raw.log_time_ns)} s, sequence {raw.sequence}"
+                if self.strict:
+                    raise DecodeError(f"{exc.msg} ({where})", hint=exc.hint) from exc
                 name = f"{raw.channel.topic}@{raw.log_time_ns}"
                 self.stats.skipped += 1
                 self.stats.skipped_names.append(name)
-                log.warning("skipping undecodable message %s: %s", name, exc.msg)
+                log.warning("skipping undecodable message %s (%s): %s", name, where, exc.msg)
                 continue
             yield raw.channel.topic, rec
         self._note_damage()
@@ -361,8 +397,12 @@ class McapSource(SourceBase):
     # -- frames --------------------------------------------------------------------------------
 
     def frames(self, kinds: Collection[str] = ("rgbd",)) -> Iterator[Frame]:
-        """Frames of the given kinds (rgbd, image, odometry, imu) in time order."""
-        unknown = set(kinds) - {"rgbd", "image", "odometry", "imu"}
+        """Frames of the given kinds (rgbd, image, odometry, landmarks, imu) in time order.
+
+        Odometry and landmark frames come in the order of their stamps, odometry first at equal
+        stamps (see the module docstring); images and IMU readings in log-time order.
+        """
+        unknown = set(kinds) - set(FRAME_KINDS)
         if unknown:
             raise ConfigError(f"mcap sources do not provide {', '.join(sorted(unknown))} frames")
         roles: dict[str, str] = {}
@@ -372,11 +412,17 @@ class McapSource(SourceBase):
             roles[str(self.topic("depth"))] = "depth"
         if "odometry" in kinds:
             roles[str(self.topic("odometry"))] = "odometry"
+        if "landmarks" in kinds:
+            roles[str(self.topic("landmarks"))] = "landmarks"
         if "imu" in kinds:
             roles[str(self.topic("imu"))] = "imu"
         camera = self.camera()[0] if ("rgbd" in kinds or "image" in kinds) else None
         pairer = _StreamPairer(self.max_dt_ns, self.dt_offset_ns) if "rgbd" in kinds else None
+        order = _StampOrder([r for r in roles.values() if r in _MOTION_RANK])
+        # Odometry and landmarks are what is read when there are no images (the EKF): count them.
+        count_motion = camera is None
         self._frame_stamps = []
+        self._motion_stamps = []
         for topic, rec in self._records(roles):
             role = roles[topic]
             if role in ("rgb", "depth") and isinstance(rec, ImageRecord) and camera is not None:
@@ -386,11 +432,23 @@ class McapSource(SourceBase):
                 pairer.add(role, rec)
                 yield from self._emit(pairer.ready(), camera)
             elif role == "odometry" and isinstance(rec, PoseRecord | TwistRecord):
-                yield _odometry_frame(rec)
+                yield from self._motion(order.add(role, _odometry_frame(rec)), count_motion)
+            elif role == "landmarks" and isinstance(rec, LandmarkFrame):
+                yield from self._motion(order.add(role, rec), count_motion)
             elif role == "imu" and isinstance(rec, ImuFrame):
                 yield rec
+        yield from self._motion(order.flush(), count_motion)
         if pairer is not None and camera is not None:
             yield from self._emit(pairer.ready(final=True), camera)
+
+    def _motion(
+        self, frames: list[OdometryFrame | LandmarkFrame], count: bool
+    ) -> Iterator[OdometryFrame | LandmarkFrame]:
+        for frame in frames:
+            self._motion_stamps.append(frame.stamp_ns)
+            if count:
+                self.stats.read += 1
+            yield frame
 
     def _image_frame(self, rec: ImageRecord, camera: PinholeCamera | None) -> ImageFrame:
         self.stats.read += 1
@@ -423,18 +481,78 @@ class McapSource(SourceBase):
     # -- ground truth ----------------------------------------------------------------------------
 
     def groundtruth(self) -> Trajectory | None:
-        """Ground truth; after frames were read, interpolated to their colour stamps."""
+        """Ground truth; after frames were read, interpolated to their stamps.
+
+        The colour stamps when images were read, else the odometry and landmark stamps; the
+        poses as recorded when no frame has been read (see the module docstring).
+        """
         samples = self._groundtruth_samples()
         if samples is None:
             return None
-        if not self._frame_stamps:
+        stamps = self._frame_stamps or self._motion_stamps
+        if not stamps:
             return samples
-        query = np.unique(np.asarray(self._frame_stamps, dtype=np.int64))
+        query = np.unique(np.asarray(stamps, dtype=np.int64))
         valid, poses = interpolate_poses(samples.stamps_ns, samples.world_from_body, query)
         if not valid.any():
             log.warning("%s: ground truth does not overlap the frames in time", self.path)
             return None
         return Trajectory(query[valid], poses[valid])
+
+    def start_pose(self) -> NDArray[np.float64] | None:
+        """(3,) float64 x (m), y (m), yaw (rad) of the ground truth at the first frame's stamp.
+
+        The first frame is the earliest odometry or landmark frame: of the frames already read,
+        else of the first readable message of each topic. The ground truth is interpolated
+        there (:func:`~slamcli.geometry.interpolate_planar`); when it starts after that stamp
+        by at most :data:`START_POSE_MAX_WAIT_S`, its first pose is taken. None without
+        ground truth, without odometry and landmarks, or when the ground truth does not
+        cover the start.
+        """
+        samples = self._groundtruth_samples()
+        if samples is None:
+            return None
+        first = self._first_motion_stamp()
+        if first is None:
+            return None
+        planar = se3_to_planar(samples.world_from_body)
+        pose = interpolate_planar(samples.stamps_ns, planar, np.array([first]))[0]
+        if np.isfinite(pose).all():
+            return np.asarray(pose, dtype=np.float64)
+        late_ns = int(samples.stamps_ns[0]) - first
+        if 0 < late_ns <= round(START_POSE_MAX_WAIT_S * 1e9):
+            return np.asarray(planar[0], dtype=np.float64)
+        log.warning(
+            "%s: ground truth does not cover the first frame at %s s; no start pose",
+            self.path,
+            format_stamp(first),
+        )
+        return None
+
+    def landmark_truth(self) -> LandmarkMap | None:
+        """The true landmark positions: an MCAP log does not carry them, so None."""
+        return None
+
+    def _first_motion_stamp(self) -> int | None:
+        if self._motion_stamps:
+            return min(self._motion_stamps)
+        firsts = []
+        for role in ("odometry", "landmarks"):
+            topic = self.topic(role, required=False)
+            if topic is None:
+                continue
+            # A probe: unreadable messages are passed over here and counted when frames are read.
+            for raw in self.log.messages([topic]):
+                try:
+                    rec = self._adapt(raw.channel, raw.data, raw.log_time_ns)
+                except DecodeError:
+                    if topic not in self._decoders:
+                        raise
+                    continue
+                if isinstance(rec, PoseRecord | TwistRecord | LandmarkFrame):
+                    firsts.append(rec.stamp_ns)
+                    break
+        return min(firsts) if firsts else None
 
     def _groundtruth_samples(self) -> Trajectory | None:
         if self.gt_frame is not None:
@@ -522,7 +640,19 @@ class McapSource(SourceBase):
             details["rgb_topic"], details["depth_topic"] = rgb, depth
             frames = self._count_pairs(deep, progress)
         except TopicNotFoundError as exc:
-            problems.append(f"no RGB-D frames: {exc.msg}")
+            if self._topics_of(IMAGE_SCHEMAS) or not self._topics_of(LANDMARK_SCHEMAS):
+                problems.append(f"no RGB-D frames: {exc.msg}")
+        try:
+            landmarks = self.topic("landmarks", required=False)
+            if landmarks is not None:
+                st = stats.get(self._channels[landmarks].id)
+                details["landmark_topic"] = landmarks
+                details["landmark_messages"] = st.count if st else 0
+                odometry = self.topic("odometry", required=False)
+                if odometry is not None:
+                    details["odometry_topic"] = odometry
+        except TopicNotFoundError as exc:
+            problems.append(f"landmarks: {exc.msg}")
         gt_count = 0
         try:
             gt = self._groundtruth_samples()
@@ -584,6 +714,46 @@ class McapSource(SourceBase):
             self.dt_offset_ns,
         )
         return len(first)
+
+
+_MOTION_RANK = {"odometry": 0, "landmarks": 1}
+"""Order of odometry and landmark frames at equal stamps."""
+
+
+class _StampOrder:
+    """Odometry and landmark frames of several streams put back into stamp order.
+
+    Each stream is taken to be in stamp order by itself (a stream that is not is sorted within
+    the buffer). A frame goes out once every stream has delivered a later stamp, so a detector
+    whose messages are logged late does not put its observations after later odometry.
+    """
+
+    def __init__(self, roles: Collection[str]) -> None:
+        self.newest: dict[str, int | None] = dict.fromkeys(roles)
+        self.heap: list[tuple[int, int, int, OdometryFrame | LandmarkFrame]] = []
+        self.count = 0
+
+    def add(
+        self, role: str, frame: OdometryFrame | LandmarkFrame
+    ) -> list[OdometryFrame | LandmarkFrame]:
+        """Take one frame; return the frames that can go out now, in order."""
+        heapq.heappush(self.heap, (frame.stamp_ns, _MOTION_RANK[role], self.count, frame))
+        self.count += 1
+        newest = self.newest[role]
+        self.newest[role] = frame.stamp_ns if newest is None else max(newest, frame.stamp_ns)
+        seen = [v for v in self.newest.values() if v is not None]
+        horizon = min(seen) if len(seen) == len(self.newest) else None
+        out = []
+        while self.heap and (
+            (horizon is not None and self.heap[0][0] < horizon) or len(self.heap) > _ORDER_BUFFER
+        ):
+            out.append(heapq.heappop(self.heap)[3])
+        return out
+
+    def flush(self) -> list[OdometryFrame | LandmarkFrame]:
+        """Every frame still held, in order."""
+        out = [heapq.heappop(self.heap)[3] for _ in range(len(self.heap))]
+        return out
 
 
 class _StreamPairer:
@@ -696,6 +866,7 @@ def _kind(schema: str) -> str:
         ("odometry", ODOM_SCHEMAS),
         ("pose", POSE_SCHEMAS),
         ("imu", IMU_SCHEMAS),
+        ("landmarks", LANDMARK_SCHEMAS),
     ):
         if schema in schemas:
             return kind

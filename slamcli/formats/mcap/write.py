@@ -1,6 +1,6 @@
-"""Writing MCAP logs: RGB-D sources as ROS 2 or Foxglove messages, and run results for Foxglove.
+"""Writing MCAP logs: RGB-D sources and landmark runs as ROS 2 or Foxglove messages, run results.
 
-Two writers share one small MCAP layer (zstd chunks, one schema per type, one channel per topic,
+Three writers share one small MCAP layer (zstd chunks, one schema per type, one channel per topic,
 ``log_time`` = ``publish_time`` = the data's own stamp, messages in log-time order so chunks
 never overlap in time):
 
@@ -9,6 +9,16 @@ never overlap in time):
   text with its dependencies, as ``ros2 bag record`` stores it); ``flavor="foxglove"`` writes
   JSON messages with the official Foxglove JSON schemas (``schema_encoding="jsonschema"``,
   ``message_encoding="json"``, binary fields base64 as Foxglove's JSON convention has it).
+* :func:`write_landmark_log` turns a landmark run (a ``slamcli synth landmarks`` folder, or
+  the same data in memory as a :class:`LandmarkLog`) into a log for ``slamcli run ekf``:
+  odometry on ``/odom`` (``nav_msgs/msg/Odometry``, CDR, in both flavours: Foxglove has no
+  message for velocities), observations on ``/landmarks`` (``slamcli.LandmarkObservations``,
+  JSON, see :mod:`slamcli.formats.mcap.observations`) and ground truth on ``/ground_truth``
+  (``geometry_msgs/msg/PoseStamped``; foxglove: ``foxglove.PoseInFrame`` plus world ->
+  ``base_link`` on ``/tf``). Each odometry message's twist is the control applied from its
+  stamp to the next (``linear.x`` = v, ``angular.z`` = omega); its pose is the dead reckoning
+  of the controls before it (exact arc integration from x = y = yaw = 0 in ``odom``), as a
+  wheel-odometry node would publish.
 * :func:`write_result_log` / :func:`write_result_mcap` turn a SLAM result or a run folder into a
   ``result.mcap`` a user drags into Foxglove: the trajectory, the occupancy map, the point
   cloud and the mesh (a GLB model inside a ``foxglove.SceneUpdate``).
@@ -42,12 +52,13 @@ from __future__ import annotations
 import abc
 import base64
 import contextlib
+import csv
 import heapq
 import json
 import logging
 import math
 import struct
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from functools import cache
 from importlib import resources
@@ -58,7 +69,18 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, ExportError, FormatError, InputError
+from slamcli.formats.mcap.observations import (
+    MESSAGE_ENCODING as LANDMARK_MESSAGE_ENCODING,
+)
+from slamcli.formats.mcap.observations import (
+    SCHEMA_ENCODING as LANDMARK_SCHEMA_ENCODING,
+)
+from slamcli.formats.mcap.observations import (
+    SCHEMA_NAME as LANDMARK_SCHEMA_NAME,
+)
+from slamcli.formats.mcap.observations import landmark_message, landmark_schema
 from slamcli.formats.mesh import mesh_to_glb, read_mesh, read_points_ply
+from slamcli.formats.text import parse_floats, parse_stamp_ns
 from slamcli.rundir import atomic_path
 from slamcli.types import (
     ImuFrame,
@@ -94,6 +116,14 @@ TOPIC_CAMERA_INFO = "/camera/color/camera_info"
 TOPIC_GROUNDTRUTH = "/groundtruth"
 TOPIC_TF = "/tf"
 TOPIC_IMU = "/imu"
+
+TOPIC_ODOM = "/odom"
+TOPIC_LANDMARKS = "/landmarks"
+TOPIC_GROUND_TRUTH = "/ground_truth"
+ODOM_FRAME = "odom"
+BODY_FRAME = "base_link"
+LANDMARK_FILES = ("odometry.csv", "measurements.csv")
+"""The files that make a folder a landmark run (``groundtruth.tum`` is read when present)."""
 
 TOPIC_RESULT_POSE = "/slamcli/pose"
 TOPIC_RESULT_MAP = "/slamcli/map"
@@ -471,16 +501,44 @@ class _Ros2Writer(_FrameWriter):
             roi=roi,
         )
 
-    def pose(self, stamp_ns: int, world_from_camera: NDArray[np.float64]) -> None:
-        (x, y, z), (qx, qy, qz, qw) = _pose_parts(world_from_camera)
-        pose = self.t["geometry_msgs/msg/Pose"](
+    def _pose(self, t: Sequence[float], q: Sequence[float]) -> Any:
+        """A ``geometry_msgs/msg/Pose`` from a translation and an xyzw quaternion."""
+        (x, y, z), (qx, qy, qz, qw) = t, q
+        return self.t["geometry_msgs/msg/Pose"](
             position=self.t["geometry_msgs/msg/Point"](x=x, y=y, z=z),
             orientation=self.t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
         )
+
+    def pose(self, stamp_ns: int, world_from_camera: NDArray[np.float64]) -> None:
+        self.pose_stamped(TOPIC_GROUNDTRUTH, stamp_ns, *_pose_parts(world_from_camera))
+
+    def pose_stamped(
+        self, topic: str, stamp_ns: int, t: Sequence[float], q: Sequence[float]
+    ) -> None:
+        """A ``geometry_msgs/msg/PoseStamped`` in ``world``: translation, xyzw quaternion."""
         msg = self.t["geometry_msgs/msg/PoseStamped"](
-            header=self._header(stamp_ns, WORLD_FRAME), pose=pose
+            header=self._header(stamp_ns, WORLD_FRAME), pose=self._pose(t, q)
         )
-        self._put(TOPIC_GROUNDTRUTH, stamp_ns, msg)
+        self._put(topic, stamp_ns, msg)
+
+    def odometry(
+        self, stamp_ns: int, x: float, y: float, yaw: float, v: float, omega: float
+    ) -> None:
+        """A ``nav_msgs/msg/Odometry`` on ``/odom``: planar pose in ``odom``, twist v and omega."""
+        pose = self._pose((x, y, 0.0), (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)))
+        vector3 = self.t["geometry_msgs/msg/Vector3"]
+        twist = self.t["geometry_msgs/msg/Twist"](
+            linear=vector3(x=float(v), y=0.0, z=0.0), angular=vector3(x=0.0, y=0.0, z=float(omega))
+        )
+        msg = self.t["nav_msgs/msg/Odometry"](
+            header=self._header(stamp_ns, ODOM_FRAME),
+            child_frame_id=BODY_FRAME,
+            pose=self.t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
+            twist=self.t["geometry_msgs/msg/TwistWithCovariance"](
+                twist=twist, covariance=np.zeros(36)
+            ),
+        )
+        self._put(TOPIC_ODOM, stamp_ns, msg)
 
     def imu(self, frame: ImuFrame) -> bool:
         vector3 = self.t["geometry_msgs/msg/Vector3"]
@@ -688,6 +746,217 @@ def write_source_mcap(
         log.info("%d IMU readings left out: Foxglove has no IMU schema", imu_dropped)
     log.info("wrote %s: %d frames, %d ground-truth poses", out, summary.frames, poses.written)
     return summary
+
+
+# --------------------------------------------------------------------------------------------
+# Landmark runs
+
+
+@dataclass
+class LandmarkLog:
+    """A landmark run in memory: odometry, range-bearing observations and ground truth.
+
+    Attributes:
+        odometry_stamps_ns: (K,) int64 odometry stamps.
+        odometry: (K, 2) float64 v (m/s) and omega (rad/s) applied from each stamp to the next.
+        measurement_stamps_ns: (M,) int64 stamp of each observation.
+        measurement_ids: (M,) int64 landmark ids, -1 = unknown.
+        measurement_ranges: (M,) float64 metres.
+        measurement_bearings: (M,) float64 radians, counter-clockwise from the heading.
+        groundtruth: true poses (world_from_body), or None.
+    """
+
+    odometry_stamps_ns: NDArray[np.int64]
+    odometry: NDArray[np.float64]
+    measurement_stamps_ns: NDArray[np.int64]
+    measurement_ids: NDArray[np.int64]
+    measurement_ranges: NDArray[np.float64]
+    measurement_bearings: NDArray[np.float64]
+    groundtruth: Trajectory | None = None
+
+
+def is_landmark_dir(path: str | Path) -> bool:
+    """A landmark run folder: it holds ``odometry.csv`` and ``measurements.csv``."""
+    p = Path(path)
+    return p.is_dir() and all((p / name).is_file() for name in LANDMARK_FILES)
+
+
+def _csv_rows(path: Path, columns: tuple[str, ...]) -> Iterator[tuple[int, list[str]]]:
+    """(line number, the named columns' fields) of each data row of a CSV file with a header."""
+    try:
+        with path.open("r", encoding="utf-8-sig", newline="") as fh:
+            reader = csv.reader(fh)
+            header = next(reader, None)
+            names = [h.strip() for h in header or []]
+            missing = [c for c in columns if c not in names]
+            if missing:
+                raise FormatError(
+                    path,
+                    f"the header {','.join(names) or '(none)'} lacks {', '.join(missing)}",
+                    1,
+                    hint=f"expected a header line {','.join(columns)}",
+                )
+            index = [names.index(c) for c in columns]
+            for row in reader:
+                if not row or not "".join(row).strip():
+                    continue
+                if len(row) < len(names):
+                    raise FormatError(
+                        path, f"{len(row)} fields, the header has {len(names)}", reader.line_num
+                    )
+                yield reader.line_num, [row[i].strip() for i in index]
+    except FileNotFoundError:
+        raise InputError(f"{path}: no such file") from None
+    except UnicodeDecodeError as exc:
+        raise FormatError(path, f"not a text file ({exc.reason} at byte {exc.start})") from None
+
+
+def read_landmark_folder(folder: str | Path) -> LandmarkLog:
+    """Read a landmark run folder (``slamcli synth landmarks``) into a :class:`LandmarkLog`.
+
+    ``odometry.csv`` (t,v,omega), ``measurements.csv`` (t,id,range,bearing) and, when present,
+    ``groundtruth.tum``. Stamps are decimal seconds, read exactly to the nanosecond.
+
+    Raises:
+        InputError: a file is missing; FormatError (naming file and line) for a bad row.
+    """
+    from slamcli.formats.trajectory import read_trajectory
+
+    root = Path(folder)
+    odo_path, meas_path = root / "odometry.csv", root / "measurements.csv"
+    odo_t: list[int] = []
+    odo: list[list[float]] = []
+    for line, (t, v, w) in _csv_rows(odo_path, ("t", "v", "omega")):
+        odo_t.append(parse_stamp_ns(t, odo_path, line))
+        odo.append(parse_floats([v, w], odo_path, line, "odometry"))
+    meas_t: list[int] = []
+    ids: list[int] = []
+    meas: list[list[float]] = []
+    for line, (t, i, r, b) in _csv_rows(meas_path, ("t", "id", "range", "bearing")):
+        meas_t.append(parse_stamp_ns(t, meas_path, line))
+        try:
+            ids.append(int(i))
+        except ValueError:
+            raise FormatError(meas_path, f"id {i!r} is not an integer", line) from None
+        meas.append(parse_floats([r, b], meas_path, line, "measurement"))
+    gt_path = root / "groundtruth.tum"
+    groundtruth = read_trajectory(gt_path, "tum") if gt_path.is_file() else None
+    m = np.asarray(meas, dtype=np.float64).reshape(-1, 2)
+    return LandmarkLog(
+        odometry_stamps_ns=np.asarray(odo_t, dtype=np.int64),
+        odometry=np.asarray(odo, dtype=np.float64).reshape(-1, 2),
+        measurement_stamps_ns=np.asarray(meas_t, dtype=np.int64),
+        measurement_ids=np.asarray(ids, dtype=np.int64),
+        measurement_ranges=m[:, 0].copy(),
+        measurement_bearings=m[:, 1].copy(),
+        groundtruth=groundtruth,
+    )
+
+
+def dead_reckon(stamps_ns: NDArray[np.int64], odometry: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(K, 3) x, y, yaw at each odometry stamp from x = y = yaw = 0 at the first.
+
+    Each control (v, omega) is applied from its stamp to the next by exact arc integration;
+    the pose at stamp k is the result of controls 0 .. k-1.
+    """
+    poses = np.zeros((len(stamps_ns), 3))
+    dts = np.diff(np.asarray(stamps_ns, dtype=np.int64)) * 1e-9
+    x = y = th = 0.0
+    # Sequential by nature; a few flops per step.
+    for k, dt in enumerate(dts.tolist()):
+        v, w = float(odometry[k, 0]), float(odometry[k, 1])
+        if abs(w) > 1e-12:
+            th1 = th + w * dt
+            x += v / w * (math.sin(th1) - math.sin(th))
+            y += v / w * (math.cos(th) - math.cos(th1))
+            th = th1
+        else:
+            x += v * dt * math.cos(th)
+            y += v * dt * math.sin(th)
+        poses[k + 1] = (x, y, math.atan2(math.sin(th), math.cos(th)))
+    return poses
+
+
+def write_landmark_log(
+    out: str | Path,
+    data: str | Path | LandmarkLog,
+    *,
+    flavor: str = "ros2",
+    force: bool = False,
+) -> McapWriteSummary:
+    """Write a landmark run as an MCAP log that ``slamcli run ekf`` reads.
+
+    Topics and messages are listed in the module docstring. Every message is stamped with the
+    data's own time: header / ``timestamp``, ``log_time`` and ``publish_time`` are equal; at
+    equal stamps odometry is written before observations. Observations are grouped into one
+    message per stamp, in the rows' order.
+
+    Args:
+        out: the ``.mcap`` file; written to a temporary name and renamed into place when
+            complete, so a failure leaves no partial file and an existing one untouched.
+        data: a landmark run folder (see :func:`read_landmark_folder`) or a :class:`LandmarkLog`.
+        flavor: ``"ros2"`` (profile ros2, PoseStamped ground truth) or ``"foxglove"``
+            (``foxglove.PoseInFrame`` ground truth and ``/tf``). Odometry is CDR and
+            observations JSON in both.
+        force: replace an existing ``out``.
+
+    Raises:
+        ConfigError: a bad flavour. InputError: the folder cannot be read.
+        ExportError: ``out`` exists without ``force``, or cannot be written.
+    """
+    check_choice("flavor", flavor, FLAVORS)
+    out = Path(out)
+    _check_out(out, force)
+    run = data if isinstance(data, LandmarkLog) else read_landmark_folder(data)
+    odo_order = np.argsort(run.odometry_stamps_ns, kind="stable")
+    odo_t = run.odometry_stamps_ns[odo_order]
+    odo = run.odometry[odo_order]
+    odom_xy_yaw = dead_reckon(odo_t, odo).tolist()
+    meas_order = np.argsort(run.measurement_stamps_ns, kind="stable")
+    meas_t = run.measurement_stamps_ns[meas_order]
+    schema = (LANDMARK_SCHEMA_NAME, LANDMARK_SCHEMA_ENCODING, landmark_schema())
+    with _open_log(out, "ros2" if flavor == "ros2" else "", force) as mcap_log:
+        ros2 = _Ros2Writer(mcap_log, "none", "16UC1", 90)
+        for k, stamp in enumerate(odo_t.tolist()):
+            x, y, yaw = odom_xy_yaw[k]
+            ros2.odometry(stamp, x, y, yaw, float(odo[k, 0]), float(odo[k, 1]))
+        starts = np.flatnonzero(np.diff(meas_t, prepend=-1) != 0)
+        for begin, end in zip(starts.tolist(), [*starts[1:].tolist(), len(meas_t)], strict=True):
+            rows = meas_order[begin:end]
+            stamp = int(meas_t[begin])
+            msg = landmark_message(
+                stamp,
+                run.measurement_ids[rows].tolist(),
+                run.measurement_ranges[rows].tolist(),
+                run.measurement_bearings[rows].tolist(),
+                BODY_FRAME,
+            )
+            try:
+                payload = json.dumps(msg, separators=(",", ":"), allow_nan=False).encode()
+            except ValueError as exc:
+                raise ExportError(
+                    f"{TOPIC_LANDMARKS}: an observation at {stamp} ns is not a finite number"
+                ) from exc
+            mcap_log.add(TOPIC_LANDMARKS, schema, LANDMARK_MESSAGE_ENCODING, stamp, payload)
+        gt = run.groundtruth
+        if gt is not None and flavor == "ros2":
+            from slamcli.geometry import matrix_to_quat_xyzw
+
+            quats = matrix_to_quat_xyzw(gt.world_from_body[:, :3, :3]).tolist()
+            positions = gt.positions.tolist()
+            for stamp, t, q in zip(gt.stamps_ns.tolist(), positions, quats, strict=True):
+                ros2.pose_stamped(TOPIC_GROUND_TRUTH, stamp, t, q)
+        elif gt is not None:
+            for stamp, pose in zip(gt.stamps_ns.tolist(), gt.world_from_body, strict=True):
+                _write_pose_and_tf(mcap_log, TOPIC_GROUND_TRUTH, BODY_FRAME, stamp, pose)
+        topics = mcap_log.topics()
+    log.info(
+        "wrote %s: %d odometry, %d observation messages",
+        out,
+        topics.get(TOPIC_ODOM, ("", 0))[1],
+        topics.get(TOPIC_LANDMARKS, ("", 0))[1],
+    )
+    return McapWriteSummary(out, topics)
 
 
 # --------------------------------------------------------------------------------------------
