@@ -46,6 +46,7 @@ def test_every_command_help_imports_no_heavy_library() -> None:
         ["demo", "--help"],
         ["run", "odometry", "--help"],
         ["convert", "--help"],
+        ["plan", "--help"],
     ):
         assert _modules_loaded_by(cmd) == set(), cmd
 

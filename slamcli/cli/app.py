@@ -42,9 +42,9 @@ def _root(
 def _register() -> None:
     # Command modules import only light things at import time; heavy libraries load inside
     # the command functions, so `slamcli --help` starts fast.
-    from slamcli.cli import config_cmd, convert, demo, evaluate, info, mesh, run, synth
+    from slamcli.cli import config_cmd, convert, demo, evaluate, info, mesh, plan, run, synth
 
-    for module in (demo, run, config_cmd, info, evaluate, synth, convert, mesh):
+    for module in (demo, run, config_cmd, info, evaluate, synth, convert, mesh, plan):
         module.register(app)
 
 

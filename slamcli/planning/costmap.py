@@ -1,0 +1,236 @@
+"""Free space for a round robot on an occupancy grid, and the clearance cost.
+
+The rules, exactly:
+
+- A cell is **occupied** when its probability is at least :data:`OCCUPIED_THRESH` (0.65, the
+  default ``occupied_thresh`` of ROS map_server). A NaN cell is **unknown**.
+- ``d`` is the distance (m) from a cell's centre to the centre of the nearest occupied cell
+  (``scipy.ndimage.distance_transform_edt`` with ``sampling=resolution``; ``inf`` when the map
+  has no occupied cell).
+- A cell is **blocked** when it is occupied, when ``d <= robot_radius + TIE_TOL_M`` (so a centre
+  lying exactly at the radius, up to floating-point rounding, is blocked and one just beyond it
+  is free), or when it is unknown and unknown space is not allowed. Unknown cells are blocked
+  themselves but not inflated.
+- With a clearance weight ``w > 0`` a move into a free cell costs ``w * f(d)`` extra per metre
+  moved, like Nav2's inflation layer: ``f(d) = exp(-k (d - robot_radius))`` for
+  ``robot_radius < d <= inflation_radius`` and 0 beyond, with ``k`` =
+  :data:`COST_SCALING_PER_M` (3 per metre) and ``inflation_radius`` =
+  :data:`INFLATION_RADIUS_M` (1 m) by default. ``w`` is dimensionless: with ``w = 1`` a metre
+  driven right at the edge of the blocked zone costs two metres.
+
+All positions are in the map's world frame (m); cell (row, col) covers the square whose
+lower-left corner lies at ``origin + (col, row) * resolution`` (rotated by the origin's yaw).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from slamcli.errors import ConfigError, MapError
+from slamcli.types import OccupancyGrid
+
+OCCUPIED_THRESH = 0.65
+"""A cell with occupancy probability >= this is an obstacle (map_server's default)."""
+
+TIE_TOL_M = 1e-9
+"""Distances within this of the robot radius count as equal to it (and so block the cell)."""
+
+COST_SCALING_PER_M = 3.0
+"""Default decay rate k of the clearance cost, per metre (Nav2's cost_scaling_factor)."""
+
+INFLATION_RADIUS_M = 1.0
+"""Default distance from an obstacle beyond which the clearance cost is zero, metres."""
+
+
+@dataclass(frozen=True)
+class Costmap:
+    """Blocked cells and clearance cost of one map for one robot.
+
+    Attributes:
+        grid: the map.
+        occupied: (H, W) bool, prob >= :data:`OCCUPIED_THRESH`.
+        unknown: (H, W) bool, NaN cells.
+        blocked: (H, W) bool, cells the robot's centre may not enter.
+        distance_m: (H, W) float64, distance from each cell centre to the nearest occupied cell
+            centre (m); ``inf`` everywhere when nothing is occupied.
+        extra_cost: (H, W) float64 clearance cost per metre moved into each cell, or None when
+            the clearance weight is 0.
+        robot_radius_m: the radius used for ``blocked``.
+        allow_unknown: whether unknown cells are free.
+    """
+
+    grid: OccupancyGrid
+    occupied: NDArray[np.bool_]
+    unknown: NDArray[np.bool_]
+    blocked: NDArray[np.bool_]
+    distance_m: NDArray[np.float64]
+    extra_cost: NDArray[np.float64] | None
+    robot_radius_m: float
+    allow_unknown: bool
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        h, w = self.blocked.shape
+        return int(h), int(w)
+
+    @property
+    def resolution_m(self) -> float:
+        return float(self.grid.resolution_m)
+
+
+def check_nonnegative(name: str, value: float) -> float:
+    """``value`` as a finite float >= 0, else ConfigError naming the option."""
+    v = float(value)
+    if not math.isfinite(v) or v < 0:
+        raise ConfigError(f"{name}: must be a finite number >= 0, got {value!r}")
+    return v
+
+
+def check_positive(name: str, value: float) -> float:
+    """``value`` as a finite float > 0, else ConfigError naming the option."""
+    v = float(value)
+    if not math.isfinite(v) or v <= 0:
+        raise ConfigError(f"{name}: must be a finite number > 0, got {value!r}")
+    return v
+
+
+def build_costmap(
+    grid: OccupancyGrid,
+    robot_radius_m: float = 0.2,
+    *,
+    allow_unknown: bool = False,
+    clearance_weight: float = 0.0,
+    cost_scaling_per_m: float = COST_SCALING_PER_M,
+    inflation_radius_m: float = INFLATION_RADIUS_M,
+) -> Costmap:
+    """Blocked cells and clearance cost following the rules in the module docstring."""
+    from scipy.ndimage import distance_transform_edt
+
+    radius = check_nonnegative("--robot-radius", robot_radius_m)
+    weight = check_nonnegative("--clearance-weight", clearance_weight)
+    k = check_nonnegative("cost_scaling_per_m", cost_scaling_per_m)
+    inflation = check_nonnegative("inflation_radius_m", inflation_radius_m)
+    prob = np.asarray(grid.prob)
+    if prob.ndim != 2 or prob.size == 0:
+        raise MapError(f"occupancy grid must be a non-empty (H, W) array, got shape {prob.shape}")
+    res = float(grid.resolution_m)
+    if not math.isfinite(res) or res <= 0:
+        raise MapError(f"map resolution must be > 0 m, got {grid.resolution_m!r}")
+
+    unknown = np.isnan(prob)
+    occupied = np.zeros(prob.shape, dtype=bool)
+    np.greater_equal(prob, OCCUPIED_THRESH, out=occupied, where=~unknown)
+    if occupied.any():
+        # The transform measures the distance of every non-zero cell to the nearest zero one.
+        distance = np.asarray(distance_transform_edt(~occupied, sampling=res), dtype=np.float64)
+    else:
+        distance = np.full(prob.shape, np.inf)
+    blocked = occupied | (distance <= radius + TIE_TOL_M)
+    if not allow_unknown:
+        blocked |= unknown
+
+    extra: NDArray[np.float64] | None = None
+    if weight > 0:
+        with np.errstate(over="ignore"):
+            f = np.exp(-k * np.maximum(distance - radius, 0.0))
+        f[distance > inflation] = 0.0
+        f[blocked] = 0.0
+        extra = weight * f
+    return Costmap(
+        grid=grid,
+        occupied=occupied,
+        unknown=unknown,
+        blocked=blocked,
+        distance_m=distance,
+        extra_cost=extra,
+        robot_radius_m=radius,
+        allow_unknown=allow_unknown,
+    )
+
+
+def world_to_uv(grid: OccupancyGrid, xy: ArrayLike) -> NDArray[np.float64]:
+    """World points (..., 2) in metres -> continuous grid coordinates (..., 2) in cells.
+
+    ``u`` runs along columns and ``v`` along rows: cell (row, col) is the square
+    ``col <= u <= col + 1``, ``row <= v <= row + 1``; its centre is ``(col + 0.5, row + 0.5)``.
+    """
+    p = np.asarray(xy, dtype=np.float64)
+    x0, y0, yaw = (float(a) for a in grid.origin_xy_yaw)
+    dx, dy = p[..., 0] - x0, p[..., 1] - y0
+    c, s = math.cos(yaw), math.sin(yaw)
+    res = float(grid.resolution_m)
+    return np.stack(((c * dx + s * dy) / res, (-s * dx + c * dy) / res), axis=-1)
+
+
+def uv_to_world(grid: OccupancyGrid, uv: ArrayLike) -> NDArray[np.float64]:
+    """Continuous grid coordinates (..., 2) in cells -> world points (..., 2) in metres."""
+    q = np.asarray(uv, dtype=np.float64) * float(grid.resolution_m)
+    x0, y0, yaw = (float(a) for a in grid.origin_xy_yaw)
+    c, s = math.cos(yaw), math.sin(yaw)
+    return np.stack((x0 + c * q[..., 0] - s * q[..., 1], y0 + s * q[..., 0] + c * q[..., 1]), -1)
+
+
+def map_bounds(grid: OccupancyGrid) -> tuple[float, float, float, float]:
+    """(xmin, xmax, ymin, ymax) of the map's area in the world, metres."""
+    h, w = np.asarray(grid.prob).shape
+    corners = uv_to_world(grid, [[0, 0], [w, 0], [0, h], [w, h]])
+    return (
+        float(corners[:, 0].min()),
+        float(corners[:, 0].max()),
+        float(corners[:, 1].min()),
+        float(corners[:, 1].max()),
+    )
+
+
+def nearest_free_cell(blocked: NDArray[np.bool_], cell: tuple[int, int]) -> tuple[int, int] | None:
+    """The free cell nearest (Euclidean, in cells) to ``cell``; None when every cell is blocked."""
+    if blocked.all():
+        return None
+    from scipy.ndimage import distance_transform_edt
+
+    r, c = cell
+    # A window around the cell is enough unless free space is far away; grow it until found.
+    half = 16
+    h, w = blocked.shape
+    while True:
+        r0, r1 = max(r - half, 0), min(r + half + 1, h)
+        c0, c1 = max(c - half, 0), min(c + half + 1, w)
+        window = blocked[r0:r1, c0:c1]
+        whole = r0 == 0 and c0 == 0 and r1 == h and c1 == w
+        if not window.all():
+            _, idx = distance_transform_edt(window, return_indices=True)
+            nr, nc = int(idx[0][r - r0, c - c0]), int(idx[1][r - r0, c - c0])
+            dist = math.hypot(nr + r0 - r, nc + c0 - c)
+            # Inside the window the answer is exact only if no outside cell could be closer.
+            if whole or dist <= half:
+                return nr + r0, nc + c0
+        half *= 2
+
+
+def disc_mask(
+    grid: OccupancyGrid, centre_xy: tuple[float, float], radius_m: float
+) -> NDArray[np.bool_]:
+    """(H, W) bool: cells whose square (edges included) comes within ``radius_m`` of a point.
+
+    Used for dynamic obstacles: it covers the whole disc, so a path that touches no masked
+    cell stays farther than ``radius_m`` from the centre everywhere, not only at cell centres.
+    """
+    h, w = np.asarray(grid.prob).shape
+    u, v = world_to_uv(grid, centre_xy)
+    rc = radius_m / float(grid.resolution_m)
+    mask = np.zeros((h, w), dtype=bool)
+    c0, c1 = max(math.floor(u - rc) - 1, 0), min(math.ceil(u + rc) + 1, w)
+    r0, r1 = max(math.floor(v - rc) - 1, 0), min(math.ceil(v + rc) + 1, h)
+    if c0 >= c1 or r0 >= r1:
+        return mask
+    cols = np.arange(c0, c1, dtype=np.float64)
+    rows = np.arange(r0, r1, dtype=np.float64)
+    du = np.maximum(np.maximum(cols - u, u - (cols + 1)), 0.0)
+    dv = np.maximum(np.maximum(rows - v, v - (rows + 1)), 0.0)
+    tol = TIE_TOL_M / float(grid.resolution_m)
+    mask[r0:r1, c0:c1] = dv[:, None] ** 2 + du[None, :] ** 2 <= (rc + tol) ** 2
+    return mask
