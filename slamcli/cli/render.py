@@ -24,8 +24,8 @@ if TYPE_CHECKING:
     from slamcli.run import RunOutcome
     from slamcli.types import ProgressFn
 
-out = Console(highlight=False, soft_wrap=True)
-err = Console(stderr=True, highlight=False, soft_wrap=True)
+out = Console(highlight=False, soft_wrap=True, emoji=False)
+err = Console(stderr=True, highlight=False, soft_wrap=True, emoji=False)
 
 
 class _StderrHandler(logging.Handler):
