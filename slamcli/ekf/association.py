@@ -14,6 +14,7 @@ Euclidean distance mixing metres and radians, and accept a pairing only inside t
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -93,12 +94,12 @@ def jcbb(
     r_covs: F64,
     cands: Candidates,
     gate: float,
-    joint_gates: F64,
+    joint_gate: Callable[[int], float],
     max_nodes: int = 2000,
 ) -> NDArray[np.int64]:
     """The jointly compatible pairing with the most pairs (``UNMATCHED`` for the rest).
 
-    ``joint_gates[k]`` is the χ² threshold for ``k`` pairings (2k degrees of freedom).
+    ``joint_gate(k)`` is the χ² threshold for ``k`` pairings (2k degrees of freedom).
     """
     m = cands.d2.shape[0]
     options = [[int(j) for j in np.argsort(cands.d2[i]) if cands.d2[i, j] < gate] for i in range(m)]
@@ -123,7 +124,7 @@ def jcbb(
             if j in used:
                 continue
             pairs.append((i, j))
-            if joint_distance(ekf, zs, r_covs, pairs) < joint_gates[len(pairs)]:
+            if joint_distance(ekf, zs, r_covs, pairs) < joint_gate(len(pairs)):
                 current[i] = j
                 search(i + 1, used | {j}, paired + 1)
                 current[i] = UNMATCHED

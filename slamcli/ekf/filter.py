@@ -131,6 +131,13 @@ def inverse_observation(pose: F64, z: F64) -> tuple[F64, F64, F64]:
     return lm, gr, gz
 
 
+def _add_low_rank(p: F64, w: F64, u: F64, rows: int = 256) -> None:
+    """``p += w uᵀ`` in place, a band of rows at a time: no n x n temporary."""
+    ut = np.ascontiguousarray(u.T)
+    for r0 in range(0, p.shape[0], rows):
+        p[r0 : r0 + rows] += w[r0 : r0 + rows] @ ut
+
+
 @dataclass(frozen=True)
 class Innovation:
     """A measurement's innovation for one landmark slot, before any update.
@@ -360,7 +367,7 @@ class LandmarkEkf:
         c[:2, :2] = inn.S
         c[:2, 2:] = -np.eye(2)
         c[2:, :2] = -np.eye(2)
-        p += (u @ c) @ u.T
+        _add_low_rank(p, u @ c, u)
 
     def update_iterated(self, inn: Innovation, z: F64, r_cov: F64, iterations: int) -> Innovation:
         """An iterated EKF update (Gauss-Newton on the measurement, Bell and Cathey 1993).
@@ -408,7 +415,7 @@ class LandmarkEkf:
         c[:2, :2] = last.S
         c[:2, 2:] = -np.eye(2)
         c[2:, :2] = -np.eye(2)
-        p += (u @ c) @ u.T
+        _add_low_rank(p, u @ c, u)
         return last
 
     # -- map management ---------------------------------------------------------------------

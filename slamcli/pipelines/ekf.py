@@ -26,6 +26,7 @@ scan is tried again; each such recovery is counted.
 
 from __future__ import annotations
 
+import functools
 import logging
 from dataclasses import dataclass, field
 from typing import Any
@@ -100,13 +101,13 @@ class EkfConfig:
     v_noise_floor: float = setting(0.005, min=0.0, unit="m/s/√s")
     spot_turn_noise: float = setting(1.0, min=0.0, unit="1/√s")
     spot_speed: float = setting(0.05, min=0.0, unit="m/s")
-    heading_noise_floor: float = setting(1.0, min=0.0, unit="deg/s/√s")
+    heading_noise_floor: float = setting(0.5, min=0.0, unit="deg/s/√s")
     step_noise_rel: float = setting(0.05, min=0.0)
     step_noise_floor: float = setting(0.01, min=0.0, unit="m")
     step_heading_noise: float = setting(1.0, min=0.0, unit="deg/m")
-    range_sigma: float = setting(0.1, gt=0.0, unit="m")
-    range_sigma_rel: float = setting(0.02, min=0.0)
-    bearing_sigma: float = setting(3.0, gt=0.0, unit="deg")
+    range_sigma: float = setting(0.15, gt=0.0, unit="m")
+    range_sigma_rel: float = setting(0.01, min=0.0)
+    bearing_sigma: float = setting(1.0, gt=0.0, unit="deg")
     gate_prob: float = setting(0.999, gt=0.5, lt=1.0)
     iterations: int = setting(3, min=1)
     jacobians: str = setting("first-estimates", choices=("first-estimates", "current"))
@@ -158,9 +159,7 @@ class EkfSlam:
         c = self.config
         self._gate = chi2_quantile(c.gate_prob, 2)
         self._new_gate = chi2_quantile(c.new_landmark_prob, 2)
-        self._joint_gates = np.array(
-            [0.0] + [chi2_quantile(c.gate_prob, 2 * k) for k in range(1, 64)]
-        )
+        self._joint_gates = functools.partial(_joint_gate, c.gate_prob)
         self._ekf: LandmarkEkf | None = None
         self._start: F64 | None = None
         self._t_ns: int | None = None
@@ -275,7 +274,6 @@ class EkfSlam:
         dist = float(np.hypot(delta[0], delta[1]))
         s = c.step_noise_rel * dist + c.step_noise_floor
         sh = np.radians(c.step_heading_noise) * dist + c.step_noise_rel * abs(float(delta[2]))
-        sh += np.radians(c.heading_noise_floor) * 0.1
         return np.diag([s * s, s * s, sh * sh])
 
     def _r_cov(self, rng: float) -> F64:
@@ -569,6 +567,11 @@ class EkfSlam:
             metrics=metrics,
             counts=counts,
         )
+
+
+@functools.lru_cache(maxsize=256)
+def _joint_gate(p: float, pairs: int) -> float:
+    return chi2_quantile(p, 2 * pairs)
 
 
 def chi2_quantile(p: float, dof: int) -> float:
