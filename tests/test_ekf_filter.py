@@ -834,3 +834,28 @@ def test_jcbb_pipeline_handles_a_scan_of_more_than_63_observations() -> None:
         ids = np.full(n, -1, dtype=np.int64)
         slam.process(LandmarkFrame(k * 10**8, ids=ids, ranges_m=ranges, bearings_rad=bearings))
     assert slam.finish().counts["landmarks"] == n
+
+
+def test_merging_two_copies_of_one_landmark_fuses_them() -> None:
+    """Two landmarks started from observations of one point are fused into one."""
+    ekf = LandmarkEkf(np.zeros(3), np.diag([0.01, 0.01, 0.001]))
+    r_cov = np.diag([0.05**2, np.radians(1.0) ** 2])
+    a = ekf.add_landmark(np.array([3.0, 0.2]), r_cov)
+    ekf.add_landmark(np.array([4.0, -0.5]), r_cov)  # another point, kept
+    b = ekf.add_landmark(np.array([3.02, 0.205]), r_cov)
+    before = ekf.landmarks()
+    traces = np.trace(ekf.landmark_covs(), axis1=1, axis2=2)
+    assert ekf.merge_distance(a, b) < chi2_quantile(0.999, 2)
+    assert ekf.merge_distance(a, 1) > 100.0
+    ekf.merge_landmarks(a, b)
+    assert ekf.count == 2
+    after = ekf.landmarks()
+    # The fused point lies between the two copies; the other landmark barely moves.
+    lo, hi = np.minimum(before[a], before[b]), np.maximum(before[a], before[b])
+    assert np.all(after[a] >= lo - 1e-9) and np.all(after[a] <= hi + 1e-9)
+    assert np.allclose(after[1], before[1], atol=0.02)
+    p = ekf.P
+    assert np.allclose(p, p.T, atol=1e-12)
+    assert np.all(np.linalg.eigvalsh(p) > 0)
+    # Fusing two estimates leaves the point more certain than either copy was.
+    assert np.trace(ekf.landmark_cov(a)) < min(traces[a], traces[b])

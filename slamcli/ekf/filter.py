@@ -439,6 +439,43 @@ class LandmarkEkf:
         self.count += 1
         return self.count - 1
 
+    def merge_distance(self, a: int, b: int) -> float:
+        """Squared Mahalanobis distance between two landmarks' positions (their difference
+        under its covariance, cross terms included)."""
+        self._settle()
+        i, j = _ROBOT + 2 * a, _ROBOT + 2 * b
+        p = self._p
+        s = p[i : i + 2, i : i + 2] + p[j : j + 2, j : j + 2] - p[i : i + 2, j : j + 2]
+        s = s - p[j : j + 2, i : i + 2]
+        d = self._x[i : i + 2] - self._x[j : j + 2]
+        return float(d @ np.linalg.solve(0.5 * (s + s.T) + 1e-12 * np.eye(2), d))
+
+    def merge_landmarks(self, keep: int, drop: int) -> None:
+        """Fuse landmark ``drop`` into ``keep`` (they are the same point) and delete ``drop``.
+
+        The constraint ``l_keep - l_drop = 0`` is applied as a noise-free measurement, which
+        moves both (and everything correlated with them) to their fused estimate; ``drop``
+        then carries no information of its own and is marginalised out.
+        """
+        self._settle()
+        n = self.dim
+        i, j = _ROBOT + 2 * keep, _ROBOT + 2 * drop
+        p = self._p[:n, :n]
+        a = p[:, i : i + 2] - p[:, j : j + 2]
+        s = a[i : i + 2] - a[j : j + 2]
+        s = 0.5 * (s + s.T) + 1e-9 * np.eye(2)
+        k = np.linalg.solve(s, a.T).T
+        nu = -(self._x[i : i + 2] - self._x[j : j + 2])
+        self._x[:n] += k @ nu
+        self._x[2] = wrap_angle(self._x[2])
+        u = np.hstack([k, a])
+        c = np.zeros((4, 4))
+        c[:2, :2] = s
+        c[:2, 2:] = -np.eye(2)
+        c[2:, :2] = -np.eye(2)
+        _add_low_rank(p, u @ c, u)
+        self.remove_landmark(drop)
+
     def remove_landmark(self, slot: int) -> None:
         """Delete a landmark (marginalise it out): the last slot moves into its place."""
         self._settle()

@@ -87,6 +87,8 @@ class EkfConfig:
         prune_misses, prune_miss_ratio: a confirmed landmark without id missed at least this
             often, and in more than this share of its chances, is deleted.
         max_landmarks: cap on the landmark count; further new landmarks are refused.
+        merge_radius: landmarks without ids closer than this are tested for being one point
+            (their difference inside the gate) and then fused.
         lockout_after: consecutive gate rejections of known landmarks that trigger a recovery.
         recovery_sigma_m, recovery_sigma_deg: standard deviations added to the robot's position
             and heading in a recovery.
@@ -120,6 +122,7 @@ class EkfConfig:
     prune_misses: int = setting(10, min=1)
     prune_miss_ratio: float = setting(0.8, gt=0.0, max=1.0)
     max_landmarks: int = setting(2000, min=1)
+    merge_radius: float = setting(1.0, gt=0.0, unit="m")
     lockout_after: int = setting(6, min=1)
     recovery_sigma_m: float = setting(0.1, min=0.0, unit="m")
     recovery_sigma_deg: float = setting(10.0, min=0.0, unit="deg")
@@ -304,6 +307,8 @@ class EkfSlam:
         if (~known).any():
             seen |= self._unknown(zs[~known], r_covs[~known], frame.stamp_ns)
         self._misses(seen)
+        if (~known).any():
+            self._merge(seen)
         if ekf.count and self.counts["updates"] % 200 == 0:
             ekf.symmetrize()
         self._record(frame.stamp_ns)
@@ -464,6 +469,33 @@ class EkfSlam:
             else:
                 self.counts["ambiguous"] += 1
         return seen
+
+    def _merge(self, seen: set[int]) -> None:
+        """Fuse landmarks without ids that turn out to be the same point as another one."""
+        ekf = self._filter()
+        if ekf.count < 2:
+            return
+        lm = ekf.landmarks()
+        for slot in sorted(seen, reverse=True):
+            if slot >= ekf.count or self._tracks[slot].known:
+                continue
+            near = np.flatnonzero(np.hypot(*(lm - lm[slot]).T) < self.config.merge_radius)
+            for other in near[near != slot].tolist():
+                if self._tracks[other].known or other >= ekf.count:
+                    continue
+                if ekf.merge_distance(slot, other) < self._gate:
+                    keep, drop = (slot, other)
+                    if self._tracks[other].hits > self._tracks[slot].hits:
+                        keep, drop = other, slot
+                    self._tracks[keep].hits += self._tracks[drop].hits
+                    self._tracks[keep].confirmed |= self._tracks[drop].confirmed
+                    last = ekf.count - 1
+                    ekf.merge_landmarks(keep, drop)
+                    self._tracks[drop] = self._tracks[last]
+                    self._tracks.pop()
+                    self.counts["landmarks_merged"] += 1
+                    lm = ekf.landmarks()
+                    break
 
     def _misses(self, seen: set[int]) -> None:
         """Count misses of landmarks predicted visible; delete the ones that keep missing."""
