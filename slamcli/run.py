@@ -180,15 +180,28 @@ def _evaluate_planar(
         with timings.stage("evaluate"):
             known = result.metrics.get("association") == "known"
             try:
+                smoothed = result.filtered is not None
                 evaluation = evaluate_planar(
                     groundtruth,
                     result.trajectory,
-                    est_cov=result.pose_covariances,
+                    est_cov=None if smoothed else result.pose_covariances,
                     landmarks=result.landmarks,
                     true_landmarks=true_landmarks,
                     known_ids=known,
                 )
                 metrics["evaluation"] = evaluation.to_dict()
+                if result.filtered is not None:
+                    # The filter's own path: its accuracy, and the consistency of its
+                    # covariances (NEES), which belong to it.
+                    filt = evaluate_planar(
+                        groundtruth, result.filtered, est_cov=result.pose_covariances
+                    )
+                    metrics["evaluation"]["trajectory"] = "smoothed"
+                    metrics["evaluation"]["nees"] = filt.to_dict().get("nees")
+                    metrics["filtered"] = {
+                        "ate": filt.ate.to_dict(),
+                        "ate_unaligned": filt.ate_unaligned.to_dict(),
+                    }
                 if result.dead_reckoning is not None:
                     dr = evaluate_planar(groundtruth, result.dead_reckoning)
                     metrics["dead_reckoning"] = {
@@ -217,6 +230,8 @@ def _write_products(run: RunDir, result: SlamResult, glb: bool) -> list[Path]:
     from slamcli.formats.trajectory import write_tum
 
     written = []
+    if result.filtered is not None:
+        written.append(write_tum(run.output("trajectory_filtered.tum"), result.filtered))
     if result.landmarks is not None:
         from slamcli.formats.landmark_map import write_landmarks_csv
 

@@ -240,7 +240,10 @@ class SlamResult:
     keyframes: Trajectory | None = None
     landmarks: LandmarkMap | None = None
     pose_covariances: NDArray[np.float64] | None = None
-    """(N, 3, 3) covariance of (x, y, yaw) for each trajectory row (planar pipelines)."""
+    """(N, 3, 3) covariance of (x, y, yaw) for each row of ``filtered`` if given, else of
+    ``trajectory`` (planar pipelines)."""
+    filtered: Trajectory | None = None
+    """The filter's own path when ``trajectory`` is a smoothed one (planar pipelines)."""
     dead_reckoning: Trajectory | None = None
     """The odometry integrated alone, for comparison (planar pipelines)."""
     series: dict[str, NDArray[np.float64]] = field(default_factory=dict)

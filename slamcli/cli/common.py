@@ -53,7 +53,7 @@ def exit_if_data_lost(outcome: RunOutcome, input: Path) -> None:
     skipped = outcome.counts.get("frames_skipped", 0)
     if skipped:
         raise DataLossError(
-            f"{input}: {skipped} frame(s) skipped because an image was missing or unreadable; "
+            f"{input}: {skipped} frame(s) skipped because they were missing or unreadable; "
             "the results above exclude them",
             hint=f"'slamcli info {input} --deep' names every unreadable image",
         )

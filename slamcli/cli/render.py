@@ -141,8 +141,37 @@ def progress(description: str, total: int | None = None) -> Iterator[ProgressFn]
 
 def _planar_summary(metrics: dict[str, Any], counts: dict[str, Any]) -> None:
     """The accuracy table of a planar landmark run: ATE beside dead reckoning, landmarks, NEES."""
-    ev = metrics["evaluation"]
+    ev = metrics.get("evaluation")
+    if ev:
+        _planar_accuracy(metrics, ev)
+    nees = (ev or {}).get("nees")
+    summary = {
+        "landmarks": counts.get("landmarks", 0),
+        "updates": counts.get("updates", 0),
+        "rejected by gate": counts.get("rejected_by_gate", 0),
+        "new / merged / pruned": f"{counts.get('landmarks_new', 0)} / "
+        f"{counts.get('landmarks_merged', 0)} / {counts.get('landmarks_pruned', 0)}",
+    }
+    nis = metrics.get("nis")
+    if nis:
+        summary["NIS (2 dof)"] = (
+            f"mean {nis['mean']:.2f}, {100 * nis['fraction_in_band']:.0f}% inside the 95% band"
+        )
+    if nees:
+        summary["NEES (3 dof), filter"] = (
+            f"mean {nees['mean']:.2f}, {100 * nees['fraction_in_band']:.0f}% inside the 95% band"
+        )
+    key_values("Filter", summary)
+
+
+def _planar_accuracy(metrics: dict[str, Any], ev: dict[str, Any]) -> None:
     rows = [["ATE (m), SE(2) aligned", *(f"{ev['ate'][k]:.4f}" for k in ("rmse", "mean", "max"))]]
+    filt = metrics.get("filtered")
+    if filt:
+        rows[0][0] = "ATE (m), smoothed, SE(2) aligned"
+        rows.append(
+            ["ATE (m), filter alone", *(f"{filt['ate'][k]:.4f}" for k in ("rmse", "mean", "max"))]
+        )
     dr = metrics.get("dead_reckoning")
     if dr:
         rows.append(
@@ -159,34 +188,26 @@ def _planar_summary(metrics: dict[str, Any], counts: dict[str, Any]) -> None:
         rows,
         right_align=["rmse", "mean", "max"],
     )
-    nees = ev.get("nees")
-    filt = {
-        "landmarks": counts.get("landmarks", 0),
-        "updates": counts.get("updates", 0),
-        "rejected by gate": counts.get("rejected_by_gate", 0),
-    }
-    if nees:
-        filt["NEES (3 dof)"] = (
-            f"mean {nees['mean']:.2f}, {100 * nees['fraction_in_band']:.0f}% inside the 95% band"
-        )
-    key_values("Filter", filt)
 
 
 def run_summary(outcome: RunOutcome) -> None:
     """The input, the accuracy table (when the run was scored) and the files a run wrote."""
     info = outcome.info
-    key_values(
-        "Input",
-        {
-            "data": outcome.input_path,
-            "format": info.format,
-            "frames": f"{outcome.counts.get('frames_processed', 0)} processed of {info.frames}",
-            "ground-truth poses": info.groundtruth,
-            "camera": info.camera_source,
-        },
-    )
+    processed = outcome.counts.get("frames_processed", 0)
+    facts: dict[str, Any] = {
+        "data": outcome.input_path,
+        "format": info.format,
+        # info's count is an estimate for some logs (MCAP counts RGB-D pairs by log time).
+        "frames": f"{processed} processed of {info.frames}"
+        if info.frames >= processed
+        else f"{processed} processed",
+        "ground-truth poses": info.groundtruth,
+    }
+    if info.camera_source:
+        facts["camera"] = info.camera_source
+    key_values("Input", facts)
     ev = outcome.metrics.get("evaluation")
-    if ev and ev.get("alignment") == "se2":
+    if outcome.result.landmarks is not None:
         _planar_summary(outcome.metrics, outcome.counts)
     elif ev:
         stats = [("ATE (m)", ev["ate"])]

@@ -37,6 +37,7 @@ from numpy.typing import NDArray
 from slamcli.config import setting
 from slamcli.ekf.association import UNMATCHED, Candidates, jcbb, nearest_neighbour
 from slamcli.ekf.filter import LandmarkEkf, arc_step, inverse_observation
+from slamcli.ekf.smoother import Event, Observation, Row, Step, Velocity, smooth_path
 from slamcli.errors import PipelineError
 from slamcli.geometry.planar import planar_to_se3, se3_to_planar, wrap_angle
 from slamcli.types import LandmarkFrame, LandmarkMap, OdometryFrame, SlamResult, Trajectory
@@ -72,6 +73,9 @@ class EkfConfig:
             that observing only landmarks mapped from the current pose cannot shrink the heading
             uncertainty, a known cause of over-confidence; ``current`` is the textbook EKF
             (and allows ``iterations`` > 1).
+        smooth: write trajectory.tum smoothed against the final map (a forward localisation
+            filter and a backward pass over the recorded odometry and accepted observations);
+            the filter's own path is kept as trajectory_filtered.tum.
         gate_prob: χ² probability of the association and update gate (2 degrees of freedom).
         new_landmark_prob: an observation without id starts a landmark only when it lies
             outside this χ² probability of every landmark.
@@ -112,6 +116,7 @@ class EkfConfig:
     bearing_sigma: float = setting(1.0, gt=0.0, unit="deg")
     gate_prob: float = setting(0.999, gt=0.5, lt=1.0)
     iterations: int = setting(3, min=1)
+    smooth: bool = setting(True)
     jacobians: str = setting("first-estimates", choices=("first-estimates", "current"))
     new_landmark_prob: float = setting(0.99999, gt=0.5, lt=1.0)
     association: str = setting("nn", choices=("nn", "jcbb"))
@@ -179,6 +184,9 @@ class EkfSlam:
         self._with_id = 0
         self._without_id = 0
         self._stamps: list[int] = []
+        self._events: list[Event] = []
+        self._redirect: dict[int, int] = {}
+        self._start_cov = np.eye(3)
         self._poses: list[F64] = []
         self._covs: list[F64] = []
         self._dr_poses: list[F64] = []
@@ -213,6 +221,7 @@ class EkfSlam:
                 [c.initial_sigma_m**2, c.initial_sigma_m**2, np.radians(c.initial_sigma_deg) ** 2]
             )
             self._ekf = LandmarkEkf(pose, cov, first_estimates=c.jacobians == "first-estimates")
+            self._start_cov = cov
             self._dr = pose.copy()
         return self._ekf
 
@@ -234,7 +243,9 @@ class EkfSlam:
         if self._t_ns is not None and self._control is not None and stamp_ns > self._t_ns:
             dt = (stamp_ns - self._t_ns) * 1e-9
             v, w = self._control
-            ekf.predict_velocity(v, w, dt, self._control_psd(v, w))
+            psd = self._control_psd(v, w)
+            ekf.predict_velocity(v, w, dt, psd)
+            self._events.append(Velocity(dt, v, w, (float(psd[0]), float(psd[1]))))
             assert self._dr is not None
             dr = self._dr
             dr[0], dr[1], dr[2] = arc_step(dr[0], dr[1], dr[2], v, w, dt)[:3]
@@ -259,7 +270,9 @@ class EkfSlam:
             pose = se3_to_planar(frame.world_from_body)[0]
             if self._odom_pose is not None:
                 delta = _relative(self._odom_pose, pose)
-                ekf.predict_relative(delta, self._step_cov(delta))
+                step_cov = self._step_cov(delta)
+                ekf.predict_relative(delta, step_cov)
+                self._events.append(Step(delta, step_cov))
                 assert self._dr is not None
                 from slamcli.ekf.filter import relative_motion
 
@@ -427,6 +440,7 @@ class EkfSlam:
             ekf.update(inn)
         self.counts["updates"] += 1
         self._nis.append((stamp_ns, inn.d2))
+        self._events.append(Observation(self._tracks[inn.slot].ident, z, r_cov))
 
     # -- unknown correspondences ------------------------------------------------------------
 
@@ -471,7 +485,8 @@ class EkfSlam:
         return seen
 
     def _merge(self, seen: set[int]) -> None:
-        """Fuse landmarks without ids that turn out to be the same point as another one."""
+        """Fuse a landmark without id seen in this scan with another one (not seen in it) that
+        turns out to be the same point."""
         ekf = self._filter()
         if ekf.count < 2:
             return
@@ -481,12 +496,14 @@ class EkfSlam:
                 continue
             near = np.flatnonzero(np.hypot(*(lm - lm[slot]).T) < self.config.merge_radius)
             for other in near[near != slot].tolist():
-                if self._tracks[other].known or other >= ekf.count:
+                # Two landmarks seen in one scan are two points, however close.
+                if other in seen or self._tracks[other].known:
                     continue
                 if ekf.merge_distance(slot, other) < self._gate:
                     keep, drop = (slot, other)
                     if self._tracks[other].hits > self._tracks[slot].hits:
                         keep, drop = other, slot
+                    self._redirect[self._tracks[drop].ident] = self._tracks[keep].ident
                     self._tracks[keep].hits += self._tracks[drop].hits
                     self._tracks[keep].confirmed |= self._tracks[drop].confirmed
                     last = ekf.count - 1
@@ -494,8 +511,8 @@ class EkfSlam:
                     self._tracks[drop] = self._tracks[last]
                     self._tracks.pop()
                     self.counts["landmarks_merged"] += 1
-                    lm = ekf.landmarks()
-                    break
+                    # Slots moved: one merge per scan; the next scan looks again.
+                    return
 
     def _misses(self, seen: set[int]) -> None:
         """Count misses of landmarks predicted visible; delete the ones that keep missing."""
@@ -545,11 +562,13 @@ class EkfSlam:
             self._poses[-1] = ekf.pose.copy()
             self._covs[-1] = ekf.pose_cov.copy()
             self._dr_poses[-1] = self._dr.copy()
+            self._events.append(Row(len(self._stamps) - 1))
             return
         self._stamps.append(stamp_ns)
         self._poses.append(ekf.pose.copy())
         self._covs.append(ekf.pose_cov.copy())
         self._dr_poses.append(self._dr.copy())
+        self._events.append(Row(len(self._stamps) - 1))
 
     def finish(self) -> SlamResult:
         if not self._stamps:
@@ -590,8 +609,28 @@ class EkfSlam:
             lc = np.array(self._lm_count, dtype=np.float64)
             lc[:, 0] *= 1e-9
             series["landmarks"] = lc
+        filtered = Trajectory(stamps, planar_to_se3(poses))
+        trajectory = filtered
+        if c.smooth:
+            final = {
+                self._tracks[i].ident: (ekf.landmark(i).copy(), ekf.landmark_cov(i).copy())
+                for i in keep
+            }
+
+            def lookup(ident: int) -> tuple[F64, F64] | None:
+                while ident in self._redirect:
+                    ident = self._redirect[ident]
+                return final.get(ident)
+
+            start = self._start if self._start is not None else np.zeros(3)
+            smoothed, _, used = smooth_path(
+                self._events, len(stamps), start, self._start_cov, lookup, self._gate
+            )
+            trajectory = Trajectory(stamps, planar_to_se3(smoothed))
+            counts["smoother_observations"] = used
         return SlamResult(
-            trajectory=Trajectory(stamps, planar_to_se3(poses)),
+            trajectory=trajectory,
+            filtered=filtered if trajectory is not filtered else None,
             landmarks=LandmarkMap(lm_ids[order], xy[order], covs[order]),
             pose_covariances=np.asarray(self._covs),
             dead_reckoning=Trajectory(stamps, planar_to_se3(np.asarray(self._dr_poses))),
