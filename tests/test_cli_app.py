@@ -47,6 +47,8 @@ def test_every_command_help_imports_no_heavy_library() -> None:
         ["run", "odometry", "--help"],
         ["convert", "--help"],
         ["plan", "--help"],
+        ["map", "build", "--help"],
+        ["map", "show", "--help"],
     ):
         assert _modules_loaded_by(cmd) == set(), cmd
 

@@ -42,9 +42,20 @@ def _root(
 def _register() -> None:
     # Command modules import only light things at import time; heavy libraries load inside
     # the command functions, so `slamcli --help` starts fast.
-    from slamcli.cli import config_cmd, convert, demo, evaluate, info, mesh, plan, run, synth
+    from slamcli.cli import (
+        config_cmd,
+        convert,
+        demo,
+        evaluate,
+        info,
+        map_cmd,
+        mesh,
+        plan,
+        run,
+        synth,
+    )
 
-    for module in (demo, run, config_cmd, info, evaluate, synth, convert, mesh, plan):
+    for module in (demo, run, config_cmd, info, evaluate, synth, convert, mesh, map_cmd, plan):
         module.register(app)
 
 

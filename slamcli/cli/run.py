@@ -54,6 +54,14 @@ Mcap = Annotated[
     bool,
     typer.Option("--mcap", help="Also write result.mcap (open it in Foxglove)."),
 ]
+BuildMap = Annotated[
+    bool,
+    typer.Option(
+        "--map",
+        help="Also build the occupancy map: map.yaml, map.pgm, map.png, map.json "
+        "(as 'slamcli map build' with its defaults).",
+    ),
+]
 
 
 ConfigFile = Annotated[
@@ -123,6 +131,7 @@ def _command(pipeline: str) -> Any:
         force: Force = False,
         max_frames: MaxFrames = None,
         mcap: Mcap = False,
+        map_: BuildMap = False,
         config: ConfigFile = None,
         set_: Sets = None,
         max_dt: MaxDt = DEFAULTS.max_dt,
@@ -150,7 +159,7 @@ def _command(pipeline: str) -> Any:
 
         settings = load_config(get_pipeline(pipeline).config_class, pipeline, config, set_ or ())
         opts = SourceOptions.pick(locals())
-        _run(pipeline, input, out, force, max_frames, mcap, opts, settings)
+        _run(pipeline, input, out, force, max_frames, mcap, opts, settings, map_)
 
     command.__doc__ = DOCS[pipeline]
     return boundary(command)
@@ -169,6 +178,7 @@ def _run(
     mcap: bool,
     opts: SourceOptions,
     settings: Any,
+    build_map: bool = False,
 ) -> None:
     from slamcli.run import run_pipeline
 
@@ -185,5 +195,11 @@ def _run(
             mcap=mcap,
             progress=progress,
         )
+    if build_map:
+        from slamcli.mapping import map_run
+
+        with render.progress("map") as progress:
+            _, written = map_run(outcome.run_dir, force=True, progress=progress)
+        outcome.outputs[-1:-1] = written  # before run.json, as run.json lists them
     render.run_summary(outcome)
     exit_if_data_lost(outcome, input)

@@ -1,0 +1,571 @@
+"""``build_map``: an occupancy grid from a run folder (dense RGB-D or EKF landmark run).
+
+**Dense runs** (a run folder with ``trajectory.tum`` and no ``landmarks.csv``). The run's input
+log is opened again (``run.json``'s ``inputs[0].path`` with the source options the run used,
+or ``input_path``) and its depth frames are paired with the trajectory: a frame gets the pose
+interpolated at its stamp when a trajectory stamp lies within :attr:`MapSettings.pose_max_dt_s`
+(20 ms) of it, else it is skipped. Every ``frame_step``-th frame is used, every
+``pixel_step``-th pixel in both directions, depths in (0, ``max_depth_m``]. Up and the floor
+plane come from :mod:`slamcli.mapping.floor` (RANSAC over ``points.ply``, else ``mesh.ply``'s
+vertices, else the back-projected depth points). In the floor frame (z = height above the
+floor):
+
+- a point whose height lies in the band ``[zmin, zmax]`` (default 0.1 to 1.5 m: the body of a
+  ground robot; lower things are floor, higher ones pass over it) is a **hit**;
+- the 3-D ray from the camera to each point is carved free, projected onto the floor, over
+  the part of it that lies at or below ``zmax``: a ray to a floor point carves all the way and
+  its end cell is free; a ray to a point above the band (a ceiling, a shelf) stops where it
+  rises through ``zmax``, so it never clears the cells of a box it passes over. (Carving the
+  whole 2-D ray to such points, as a plain 2-D projection would, erased box tops and table
+  legs seen under the ceiling.)
+
+Updates follow :mod:`slamcli.mapping.occupancy` (one scan per frame, l_occ +0.85, l_free -0.4,
+clamped to [-2, 3.5]); the map's frame is the floor frame (x along the world's x projected on
+the floor).
+
+**EKF runs** (``landmarks.csv``). The map frame is the run's world plane. Observations are read
+again from the input (``--robot`` and the other options recorded in ``run.json``'s
+``config.source``); each ray runs from the robot's pose, interpolated in ``trajectory.tum`` at
+the observation's stamp, along the measured bearing for the measured range minus
+``landmark_radius_m`` and is carved free (one scan per observation instant). Then the cells
+within ``robot_radius_m`` of the path are set free (log-odds -2) and the cells within
+``landmark_radius_m`` (default 0.2 m) of every mapped landmark occupied (log-odds 3.5).
+
+**Extent.** The bounding box of everything observed plus :attr:`MapSettings.margin_m`, its
+origin snapped to a multiple of the resolution.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import logging
+import math
+import time
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.errors import ConfigError, InputError
+from slamcli.mapping.floor import (
+    FloorPlane,
+    Up,
+    find_floor,
+    up_from_accelerometer,
+    up_from_cameras,
+)
+from slamcli.mapping.occupancy import L_FREE, L_MAX, L_MIN, L_OCC, LogOddsGrid
+from slamcli.types import OccupancyGrid, ProgressFn, Trajectory
+
+log = logging.getLogger(__name__)
+
+F64 = NDArray[np.float64]
+F32 = NDArray[np.float32]
+
+MAP_FILES = ("map.yaml", "map.pgm", "map.png", "map.json")
+"""What :func:`write_map` writes into a folder."""
+
+FREE_THRESH = 0.196
+OCCUPIED_THRESH = 0.65
+"""The trinary thresholds map.yaml is written with (see :mod:`slamcli.formats.occupancy`)."""
+
+
+@dataclass(frozen=True)
+class MapSettings:
+    """How a map is built (rules in the module docstring).
+
+    Attributes:
+        resolution_m: cell edge, metres.
+        height_band_m: (zmin, zmax) heights above the floor that count as obstacles, metres.
+        pixel_step: use every n-th depth pixel in both directions.
+        frame_step: use every n-th depth frame.
+        max_depth_m: depth readings beyond this are ignored, metres.
+        pose_max_dt_s: a frame needs a trajectory stamp this close to its own, seconds.
+        landmark_radius_m: radius of the obstacle drawn around each landmark (EKF runs).
+        robot_radius_m: radius of the robot's footprint carved free along its path (EKF runs).
+        margin_m: extra space around what was observed.
+        seed: RANSAC's seed.
+    """
+
+    resolution_m: float = 0.05
+    height_band_m: tuple[float, float] = (0.1, 1.5)
+    pixel_step: int = 4
+    frame_step: int = 1
+    max_depth_m: float = 5.0
+    pose_max_dt_s: float = 0.02
+    landmark_radius_m: float = 0.2
+    robot_radius_m: float = 0.2
+    margin_m: float = 0.25
+    seed: int = 0
+
+    def checked(self) -> MapSettings:
+        """These settings, or ConfigError naming the option that is out of range."""
+        for name, value in (
+            ("--resolution", self.resolution_m),
+            ("--max-depth", self.max_depth_m),
+            ("pose_max_dt_s", self.pose_max_dt_s),
+        ):
+            if not (math.isfinite(value) and value > 0):
+                raise ConfigError(f"{name}: must be a number > 0, got {value!r}")
+        for name, value in (
+            ("--landmark-radius", self.landmark_radius_m),
+            ("--robot-radius", self.robot_radius_m),
+            ("margin_m", self.margin_m),
+        ):
+            if not (math.isfinite(value) and value >= 0):
+                raise ConfigError(f"{name}: must be a number >= 0, got {value!r}")
+        for name, step in (("--pixel-step", self.pixel_step), ("--frame-step", self.frame_step)):
+            if int(step) != step or step < 1:
+                raise ConfigError(f"{name}: must be an integer >= 1, got {step!r}")
+        lo, hi = self.height_band_m
+        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+            raise ConfigError(
+                f"--height-band: needs zmin < zmax (metres above the floor), got {lo:g},{hi:g}",
+                hint="for example --height-band 0.1,1.5",
+            )
+        return self
+
+
+def parse_height_band(text: str) -> tuple[float, float]:
+    """``"zmin,zmax"`` -> two floats with zmin < zmax; ConfigError naming ``--height-band``."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        lo, hi = (float(p) for p in parts)
+    except ValueError:
+        raise ConfigError(
+            f"--height-band: expected two numbers zmin,zmax in metres, got {text!r}",
+            hint="for example --height-band 0.1,1.5",
+        ) from None
+    return replace(MapSettings(), height_band_m=(lo, hi)).checked().height_band_m
+
+
+class BuiltMap(NamedTuple):
+    """What :func:`build_map` made.
+
+    Attributes:
+        grid: occupancy probabilities (NaN unknown) in the map frame.
+        report: the figures written to map.json (JSON-ready).
+        path_xy: (N, 2) float64 the camera's or robot's path in the map frame, metres.
+    """
+
+    grid: OccupancyGrid
+    report: dict[str, Any]
+    path_xy: F64
+
+
+@dataclass
+class _Rays:
+    """One scan's 2-D rays in the map frame, for the two passes (extent, then carving)."""
+
+    starts: F32
+    ends: F32
+    hit: NDArray[np.bool_]
+
+
+@dataclass
+class _Scans:
+    scans: list[_Rays] = field(default_factory=list)
+
+    def bounds(self) -> tuple[F64, F64] | None:
+        parts = [np.concatenate([s.starts, s.ends]) for s in self.scans if len(s.hit)]
+        if not parts:
+            return None
+        lo = np.min([p.min(axis=0) for p in parts], axis=0).astype(np.float64)
+        hi = np.max([p.max(axis=0) for p in parts], axis=0).astype(np.float64)
+        return lo, hi
+
+
+def build_map(
+    run_dir: str | Path,
+    *,
+    settings: MapSettings | None = None,
+    input_path: str | Path | None = None,
+    progress: ProgressFn | None = None,
+) -> BuiltMap:
+    """Build an occupancy grid from a run folder (rules in the module docstring).
+
+    Args:
+        run_dir: a run folder with trajectory.tum and run.json (and landmarks.csv for EKF runs).
+        input_path: the run's input log, when it is not where run.json says.
+
+    Raises:
+        InputError: the folder lacks trajectory.tum or run.json, the input moved, no frame has a
+            pose, no floor was found. ConfigError: a bad setting.
+    """
+    t0 = time.perf_counter()
+    cfg = (settings or MapSettings()).checked()
+    run = Path(run_dir)
+    if not run.is_dir():
+        raise InputError(f"{run}: no such run folder")
+    traj_path = run / "trajectory.tum"
+    if not traj_path.is_file():
+        raise InputError(
+            f"{run}: a run folder without trajectory.tum",
+            hint="pass a folder written by 'slamcli run ...'",
+        )
+    from slamcli.formats.trajectory import read_trajectory
+
+    trajectory = read_trajectory(traj_path, "tum")
+    if len(trajectory) == 0:
+        raise InputError(f"{traj_path}: holds no poses")
+    record = _read_run_json(run)
+    source_path = _input_path(run, record, input_path)
+    options = dict(record.get("config", {}).get("source", {}) or {})
+    if (run / "landmarks.csv").is_file():
+        built = _landmark_map(run, trajectory, source_path, options, cfg)
+    else:
+        built = _depth_map(run, trajectory, source_path, options, cfg, progress)
+    report = built.report
+    report["cells"] = cell_counts(built.grid)
+    report["time_s"] = round(time.perf_counter() - t0, 3)
+    return built
+
+
+# --- run folder ------------------------------------------------------------------------------
+
+
+def _read_run_json(run: Path) -> dict[str, Any]:
+    path = run / "run.json"
+    if not path.is_file():
+        raise InputError(
+            f"{run}: a run folder without run.json",
+            hint="pass a folder written by 'slamcli run ...'",
+        )
+    try:
+        record = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as exc:
+        raise InputError(f"{path}: not readable JSON ({exc})") from exc
+    if not isinstance(record, dict):
+        raise InputError(f"{path}: expected a JSON object")
+    return record
+
+
+def _input_path(run: Path, record: dict[str, Any], given: str | Path | None) -> Path:
+    """The run's input log: ``given``, else run.json's, tried as it is (absolute or relative to
+    the current folder) and then relative to the run folder."""
+    if given is not None:
+        p = Path(given)
+        if not p.exists():
+            raise InputError(f"{p}: no such file or folder (--input)")
+        return p
+    inputs = record.get("inputs") or []
+    if not inputs or not isinstance(inputs[0], dict) or "path" not in inputs[0]:
+        raise InputError(
+            f"{run / 'run.json'}: names no input log",
+            hint="pass --input PATH with the log the run was made from",
+        )
+    recorded = Path(str(inputs[0]["path"]))
+    for candidate in (recorded, run / recorded):
+        if candidate.exists():
+            return candidate
+    raise InputError(
+        f"{run / 'run.json'}: the run's input {recorded} no longer exists",
+        hint="pass --input PATH with the log's new location",
+    )
+
+
+# --- dense runs ------------------------------------------------------------------------------
+
+
+def _depth_map(
+    run: Path,
+    trajectory: Trajectory,
+    source_path: Path,
+    options: dict[str, Any],
+    cfg: MapSettings,
+    progress: ProgressFn | None,
+) -> BuiltMap:
+    from slamcli.formats import open_source
+    from slamcli.geometry import interpolate_poses
+
+    cams: list[F64] = []
+    points: list[F32] = []
+    accel_stamps: list[int] = []
+    accel: list[F64] = []
+    frames_read = without_pose = 0
+    with open_source(source_path, **options) as source:
+        total = source.info().frames
+        for frame in _depth_and_imu(source):
+            if isinstance(frame, tuple):
+                accel_stamps.append(frame[0])
+                accel.append(frame[1])
+                continue
+            frames_read += 1
+            if progress:
+                progress(frames_read, max(total, frames_read))
+            if (frames_read - 1) % cfg.frame_step:
+                continue
+            pose = _pose_at(trajectory, frame.stamp_ns, cfg.pose_max_dt_s)
+            if pose is None:
+                without_pose += 1
+                continue
+            pts = _back_project(frame.depth_m, frame.camera.K, cfg.pixel_step, cfg.max_depth_m)
+            cams.append(pose)
+            points.append((pts @ pose[:3, :3].T + pose[:3, 3]).astype(np.float32))
+    if not cams:
+        raise InputError(
+            f"{source_path}: none of its {frames_read} depth frames has a pose in "
+            f"{run / 'trajectory.tum'} (within {cfg.pose_max_dt_s * 1000:g} ms)",
+            hint="is --input the log this run was made from?",
+        )
+    poses = np.stack(cams)
+    up = None
+    if accel:
+        valid, at = interpolate_poses(
+            trajectory.stamps_ns, trajectory.world_from_body, np.asarray(accel_stamps)
+        )
+        up = up_from_accelerometer(at[valid], np.stack(accel)[valid]) if valid.any() else None
+    up = up or up_from_cameras(poses)
+    cloud, cloud_source = _floor_points(run, points)
+    centre = poses[:, :3, 3].mean(axis=0)
+    floor = find_floor(cloud, up.direction, centre, seed=cfg.seed)
+
+    scans = _Scans()
+    lo, hi = cfg.height_band_m
+    for pose, world_pts in zip(poses, points, strict=True):
+        cam = floor.to_floor(pose[:3, 3])[0]
+        scans.scans.append(_clip_rays(cam, floor.to_floor(world_pts), lo, hi))
+    path_xy = floor.to_floor(poses[:, :3, 3])[:, :2]
+    grid = _carve(scans, path_xy, cfg)
+    report = {
+        "kind": "depth",
+        "run": str(run),
+        "input": str(source_path),
+        "resolution_m": cfg.resolution_m,
+        "height_band_m": list(cfg.height_band_m),
+        "frames": {
+            "read": frames_read,
+            "used": len(cams),
+            "without_pose": without_pose,
+            "frame_step": cfg.frame_step,
+            "pixel_step": cfg.pixel_step,
+        },
+        "rays": int(sum(len(s.hit) for s in scans.scans)),
+        "up": _up_record(up),
+        "floor": _floor_record(floor, up, cloud_source),
+        **_common_record(grid, cfg),
+    }
+    return BuiltMap(grid.to_grid(), report, path_xy)
+
+
+def _depth_and_imu(source: Any) -> Any:
+    """The source's RGB-D frames, with (stamp, accel) tuples for its accelerometer readings when
+    it has them."""
+    from slamcli.types import ImuFrame, RgbdFrame
+
+    try:
+        frames = iter(source.frames(("rgbd", "imu")))
+        first = next(frames, None)
+    except InputError:
+        # A log without an IMU stream (an MCAP without Imu messages) refuses the kind.
+        frames = iter(source.frames(("rgbd",)))
+        first = next(frames, None)
+    if first is None:
+        return
+    for frame in itertools.chain([first], frames):
+        if isinstance(frame, ImuFrame):
+            if frame.accel_mps2 is not None:
+                yield (int(frame.stamp_ns), np.asarray(frame.accel_mps2, dtype=np.float64))
+        elif isinstance(frame, RgbdFrame):
+            yield frame
+
+
+def _pose_at(trajectory: Trajectory, stamp_ns: int, max_dt_s: float) -> F64 | None:
+    from slamcli.geometry import interpolate_poses
+
+    stamps = trajectory.stamps_ns
+    k = int(np.searchsorted(stamps, stamp_ns))
+    near = [abs(int(stamps[i]) - stamp_ns) for i in (k - 1, k) if 0 <= i < len(stamps)]
+    if not near or min(near) > max_dt_s * 1e9:
+        return None
+    _, pose = interpolate_poses(stamps, trajectory.world_from_body, np.array([stamp_ns]))
+    return np.asarray(pose[0], dtype=np.float64)
+
+
+def _back_project(depth_m: F32, K: F64, step: int, max_depth_m: float) -> F64:
+    """(M, 3) camera-frame points of every ``step``-th pixel with a depth in (0, max]."""
+    z = np.asarray(depth_m, dtype=np.float32)[::step, ::step]
+    rows, cols = np.nonzero(np.isfinite(z) & (z > 0) & (z <= max_depth_m))
+    d = z[rows, cols].astype(np.float64)
+    u, v = cols * step, rows * step
+    x = (u - K[0, 2]) / K[0, 0] * d
+    y = (v - K[1, 2]) / K[1, 1] * d
+    return np.stack([x, y, d], axis=1)
+
+
+def _floor_points(run: Path, points: list[F32]) -> tuple[F64, str]:
+    """Points to look for the floor in: points.ply, else mesh.ply's vertices, else the depth."""
+    for name in ("points.ply", "mesh.ply"):
+        path = run / name
+        if path.is_file():
+            from slamcli.formats.mesh import read_points_ply
+
+            cloud, _ = read_points_ply(path)
+            if len(cloud):
+                return cloud, name
+    return np.concatenate(points).astype(np.float64), "depth frames"
+
+
+def _clip_rays(cam: F64, pts: F64, lo: float, hi: float) -> _Rays:
+    """2-D rays (floor frame) for one frame: the parts of the camera-to-point rays at or below
+    ``hi``; a ray ending in the band is a hit."""
+    hc, hp = float(cam[2]), pts[:, 2]
+    delta = hp - hc
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t_cross = np.where(delta != 0, (hi - hc) / delta, np.inf)
+    if hc <= hi:
+        t0 = np.zeros_like(hp)
+        t1 = np.where(hp <= hi, 1.0, t_cross)
+    else:
+        t0 = np.where(hp <= hi, t_cross, 1.0)
+        t1 = np.ones_like(hp)
+    keep = t1 > t0 if hc > hi else np.ones(hp.shape, dtype=bool)
+    a, d = cam[:2], pts[:, :2] - cam[:2]
+    starts = a + t0[keep, None] * d[keep]
+    ends = a + t1[keep, None] * d[keep]
+    hit = ((hp >= lo) & (hp <= hi))[keep]
+    return _Rays(starts.astype(np.float32), ends.astype(np.float32), hit)
+
+
+def _carve(scans: _Scans, also_xy: F64, cfg: MapSettings) -> LogOddsGrid:
+    """A grid covering the scans' rays and the points ``also_xy`` (N, 2), with every scan
+    integrated."""
+    box = scans.bounds()
+    lo, hi = also_xy.min(axis=0), also_xy.max(axis=0)
+    if box is not None:
+        lo, hi = np.minimum(lo, box[0]), np.maximum(hi, box[1])
+    grid = LogOddsGrid.covering(lo, hi, cfg.resolution_m, cfg.margin_m)
+    for s in scans.scans:
+        grid.integrate(s.starts, s.ends, s.hit)
+    return grid
+
+
+# --- EKF runs --------------------------------------------------------------------------------
+
+
+def _landmark_map(
+    run: Path,
+    trajectory: Trajectory,
+    source_path: Path,
+    options: dict[str, Any],
+    cfg: MapSettings,
+) -> BuiltMap:
+    from slamcli.formats import open_source
+    from slamcli.formats.landmark_map import read_landmarks_csv
+    from slamcli.geometry import interpolate_planar, se3_to_planar
+    from slamcli.types import LandmarkFrame
+
+    landmarks = read_landmarks_csv(run / "landmarks.csv")
+    planar = se3_to_planar(trajectory.world_from_body)
+    stamps: list[int] = []
+    frames: list[LandmarkFrame] = []
+    with open_source(source_path, **options) as source:
+        for frame in source.frames(("landmarks",)):
+            if isinstance(frame, LandmarkFrame) and len(frame.ranges_m):
+                stamps.append(int(frame.stamp_ns))
+                frames.append(frame)
+    at = (
+        interpolate_planar(trajectory.stamps_ns, planar, np.asarray(stamps, dtype=np.int64))
+        if stamps
+        else np.zeros((0, 3))
+    )
+    scans = _Scans()
+    for pose, frame in zip(at, frames, strict=True):
+        if not np.all(np.isfinite(pose)):
+            continue
+        reach = np.asarray(frame.ranges_m, dtype=np.float64) - cfg.landmark_radius_m
+        ok = np.isfinite(reach) & (reach > 0)
+        angle = pose[2] + np.asarray(frame.bearings_rad, dtype=np.float64)[ok]
+        ends = pose[:2] + reach[ok, None] * np.stack([np.cos(angle), np.sin(angle)], axis=1)
+        starts = np.broadcast_to(pose[:2], ends.shape)
+        scans.scans.append(
+            _Rays(starts.astype(np.float32), ends.astype(np.float32), np.zeros(len(ends), bool))
+        )
+    used = len(scans.scans)
+    path_xy = _densify(planar[:, :2], cfg.resolution_m / 2)
+    extra = [path_xy - cfg.robot_radius_m, path_xy + cfg.robot_radius_m]
+    if len(landmarks):
+        extra += [landmarks.xy - cfg.landmark_radius_m, landmarks.xy + cfg.landmark_radius_m]
+    grid = _carve(scans, np.concatenate(extra), cfg)
+    grid.set_cells(grid.disc_cells(path_xy, cfg.robot_radius_m), L_MIN)
+    if len(landmarks):
+        grid.set_cells(grid.disc_cells(landmarks.xy, cfg.landmark_radius_m), L_MAX)
+    report = {
+        "kind": "landmarks",
+        "run": str(run),
+        "input": str(source_path),
+        "resolution_m": cfg.resolution_m,
+        "landmarks": len(landmarks),
+        "landmark_radius_m": cfg.landmark_radius_m,
+        "robot_radius_m": cfg.robot_radius_m,
+        "frames": {"read": len(frames), "used": used, "without_pose": len(frames) - used},
+        "rays": int(sum(len(s.hit) for s in scans.scans)),
+        **_common_record(grid, cfg),
+    }
+    return BuiltMap(grid.to_grid(), report, planar[:, :2].copy())
+
+
+def _densify(xy: F64, spacing: float) -> F64:
+    """The polyline ``xy`` (N, 2) with points at most ``spacing`` apart."""
+    if len(xy) < 2:
+        return np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    seg = np.diff(xy, axis=0)
+    n = np.maximum(np.ceil(np.linalg.norm(seg, axis=1) / spacing).astype(np.int64), 1)
+    owner = np.repeat(np.arange(len(seg)), n)
+    t = (np.arange(int(n.sum())) - np.repeat(np.cumsum(n) - n, n)) / np.repeat(n, n)
+    return np.concatenate([xy[owner] + t[:, None] * seg[owner], xy[-1:]])
+
+
+# --- report ----------------------------------------------------------------------------------
+
+
+def cell_counts(grid: OccupancyGrid) -> dict[str, int]:
+    """Cells as a trinary map.yaml stores them: free (p <= 0.196), occupied (p >= 0.65), and
+    unknown (the rest, ``unobserved`` of them never seen)."""
+    prob = np.asarray(grid.prob)
+    known = ~np.isnan(prob)
+    free = int(np.count_nonzero(known & (np.rint(prob * 100) <= round(FREE_THRESH * 100))))
+    occ = int(np.count_nonzero(known & (np.rint(prob * 100) >= round(OCCUPIED_THRESH * 100))))
+    return {
+        "total": int(prob.size),
+        "free": free,
+        "occupied": occ,
+        "unknown": int(prob.size) - free - occ,
+        "unobserved": int(np.count_nonzero(~known)),
+    }
+
+
+def _common_record(grid: LogOddsGrid, cfg: MapSettings) -> dict[str, Any]:
+    h, w = grid.shape
+    return {
+        "size_cells": [w, h],
+        "size_m": [round(w * grid.resolution_m, 6), round(h * grid.resolution_m, 6)],
+        "origin_xy_yaw": [float(grid.origin_xy[0]), float(grid.origin_xy[1]), 0.0],
+        "logodds": {"occupied": L_OCC, "free": L_FREE, "min": L_MIN, "max": L_MAX},
+        "settings": {k: list(v) if isinstance(v, tuple) else v for k, v in asdict(cfg).items()},
+    }
+
+
+def _up_record(up: Up) -> dict[str, Any]:
+    return {
+        "method": up.method,
+        "direction_world": [round(float(v), 6) for v in up.direction],
+        "accelerometer_readings": up.readings,
+        "coherence": None if up.coherence is None else round(up.coherence, 4),
+    }
+
+
+def _floor_record(floor: FloorPlane, up: Up, source: str) -> dict[str, Any]:
+    tilt = math.degrees(math.acos(float(np.clip(floor.normal @ up.direction, -1.0, 1.0))))
+    return {
+        "normal_world": [round(float(v), 6) for v in floor.normal],
+        "offset_m": round(floor.offset, 6),
+        "inliers": floor.inliers,
+        "points": floor.points,
+        "points_from": source,
+        "angle_to_up_deg": round(tilt, 3),
+        "floor_from_world": [[round(float(v), 9) for v in row] for row in floor.floor_from_world],
+    }
