@@ -19,11 +19,14 @@ runner = CliRunner()
 
 
 def test_demo_writes_an_accurate_run(tmp_path: Path) -> None:
-    out = tmp_path / "demo"
-    res = runner.invoke(app, ["demo", "--out", str(out)])
+    root = tmp_path / "demo"
+    res = runner.invoke(app, ["demo", "--out", str(root)])
     assert res.exit_code == 0, res.output
+    assert {p.name for p in root.iterdir()} == {"dense", "plan", "ekf"}
+    out = root / "dense"
     products = {"trajectory.tum", "keyframes.tum", "mesh.ply", "mesh.glb", "points.ply"}
-    assert {p.name for p in out.iterdir()} == products | {"report.png", "run.json"}
+    maps = {"map.yaml", "map.pgm", "map.png", "map.json"}
+    assert {p.name for p in out.iterdir()} == products | maps | {"report.png", "run.json"}
     record = json.loads((out / "run.json").read_text())
     ev = record["metrics"]["evaluation"]
     assert ev["pairs"] == 30
@@ -32,8 +35,7 @@ def test_demo_writes_an_accurate_run(tmp_path: Path) -> None:
     assert ev["rpe"]["rot_deg"]["mean"] < 0.3
     assert record["counts"]["frames_processed"] == 30
     assert record["counts"]["frames_lost"] == 0
-    assert record["outputs"][-1] == "run.json"
-    assert set(record["outputs"]) == products | {"report.png", "run.json"}
+    assert set(record["outputs"]) == products | maps | {"report.png", "run.json"}
     import trimesh
 
     glb = trimesh.load(str(out / "mesh.glb"), file_type="glb", process=False)
@@ -41,18 +43,35 @@ def test_demo_writes_an_accurate_run(tmp_path: Path) -> None:
     assert len(geometry.faces) > 10_000
     assert (out / "report.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert "ATE (m)" in res.stdout
+    # The map of the room has walls and boxes, and free floor between them.
+    from slamcli.formats.occupancy import read_map_yaml
+
+    grid = read_map_yaml(out / "map.yaml")
+    assert np.sum(grid.prob == 1.0) > 100 and np.sum(grid.prob == 0.0) > 1000
+    # The plan crosses the map: a path of several metres, followed closely by the robot.
+    plan = json.loads((root / "plan" / "plan.json").read_text())
+    assert plan["grid_cost_m"] > 2.0
+    assert plan["length_m"] <= plan["grid_cost_m"] + 1e-9
+    assert plan["min_clearance_m"] >= 0.15
+    for name in ("path.csv", "path_smooth.csv", "trajectory.csv", "plan.png"):
+        assert (root / "plan" / name).stat().st_size > 0
+    # EKF on the landmark world: far better than dead reckoning, every landmark mapped.
+    ekf = json.loads((root / "ekf" / "run.json").read_text())["metrics"]
+    assert ekf["evaluation"]["ate"]["rmse"] < 0.2 * ekf["dead_reckoning"]["ate"]["rmse"]
+    assert ekf["evaluation"]["landmarks"]["matched"] == 40
 
 
 def test_demo_is_deterministic_and_refuses_to_clobber(tmp_path: Path) -> None:
     first, second = tmp_path / "a", tmp_path / "b"
     assert runner.invoke(app, ["demo", "--out", str(first)]).exit_code == 0
     assert runner.invoke(app, ["demo", "--out", str(second)]).exit_code == 0
-    a = (first / "trajectory.tum").read_bytes()
-    assert a == (second / "trajectory.tum").read_bytes()
+    for name in ("dense/trajectory.tum", "dense/map.pgm", "plan/path.csv", "ekf/trajectory.tum"):
+        assert (first / name).read_bytes() == (second / name).read_bytes(), name
+    a = (first / "dense" / "trajectory.tum").read_bytes()
     res = runner.invoke(app, ["demo", "--out", str(first)])
     assert res.exit_code == 1
     assert "not empty" in res.output and "--force" in res.output
-    assert (first / "trajectory.tum").read_bytes() == a
+    assert (first / "dense" / "trajectory.tum").read_bytes() == a
 
 
 def test_demo_names_missing_data(tmp_path: Path) -> None:
@@ -93,7 +112,7 @@ def test_demo_on_data_with_a_missing_image_finishes_and_exits_3(tmp_path: Path) 
     assert res.exit_code == 3, res.output
     assert missing.name in res.output
     assert "1 frame(s) skipped" in res.output
-    record = json.loads((out / "run.json").read_text())
+    record = json.loads((out / "dense" / "run.json").read_text())
     assert record["counts"]["frames_skipped"] == 1
     assert record["metrics"]["evaluation"]["pairs"] == 29
 

@@ -17,27 +17,43 @@ def register(app: typer.Typer) -> None:
 
 @boundary
 def demo(
-    out: Annotated[Path, typer.Option("--out", "-o", help="Run folder to write.")] = Path(
-        "runs/demo"
-    ),
+    out: Annotated[Path, typer.Option("--out", "-o", help="Folder to write.")] = Path("runs/demo"),
     data: Annotated[
         Path | None,
         typer.Option(help="RGB-D folder to use instead of the bundled sample_data/rgbd_room."),
     ] = None,
+    landmarks: Annotated[
+        Path | None,
+        typer.Option(help="Landmark log to use instead of the bundled sample_data/landmarks."),
+    ] = None,
     force: Annotated[bool, typer.Option(help="Overwrite a non-empty --out folder.")] = False,
 ) -> None:
-    """Run the main job on the bundled sample data and show what it wrote.
+    """Run the main jobs on the bundled sample data and show what they wrote.
 
-    Runs dense RGB-D SLAM on the sample RGB-D sequence (tracking, TSDF fusion, loop
-    closure), scores the trajectory against ground truth (ATE, RPE) and writes
-    trajectory.tum, keyframes.tum, mesh.ply, mesh.glb, points.ply, report.png and run.json
-    into --out. Exits with 3 when frames had to be skipped.
+    1. dense/: dense RGB-D SLAM on the sample RGB-D sequence (tracking, TSDF fusion, loop
+    closure), scored against ground truth, with the mesh as PLY and GLB and an occupancy
+    map (map.yaml, map.pgm, map.png) built from the run;
+    2. plan/: a path across that map between two far-apart free places, smoothed, timed and
+    followed by a simulated robot (path.csv, trajectory.csv, plan.json, plan.png);
+    3. ekf/: EKF landmark SLAM on the sample landmark world, with landmarks.csv and a report.
+    Exits with 3 when frames had to be skipped.
 
     Example: [bold]slamcli demo --out runs/demo --force[/]
     """
+    from slamcli.cli.plan import plan_summary
     from slamcli.demo import run_demo
 
-    with render.progress("tracking", None) as progress:
-        outcome = run_demo(out, data=data, force=force, progress=progress)
-    render.run_summary(outcome)
-    exit_if_data_lost(outcome, outcome.input_path)
+    with render.progress("demo", None) as progress:
+        outcome = run_demo(out, data=data, landmarks=landmarks, force=force, progress=progress)
+    render.heading("1. Dense RGB-D SLAM and an occupancy map")
+    render.run_summary(outcome.dense)
+    render.written(outcome.map_files)
+    render.heading("2. A path across the map")
+    render.key_values(
+        "Plan", plan_summary(outcome.plan, outcome.map_file, outcome.start_xy, outcome.goal_xy)
+    )
+    render.written(outcome.plan_files)
+    render.heading("3. EKF landmark SLAM")
+    render.run_summary(outcome.ekf)
+    exit_if_data_lost(outcome.dense, outcome.dense.input_path)
+    exit_if_data_lost(outcome.ekf, outcome.ekf.input_path)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
 
@@ -138,6 +138,21 @@ def plan(
     )
     written = write_plan(result, run, map_file)
 
+    rows = plan_summary(result, map_file, start_xy, goal_xy, len(dynamic))
+    render.key_values("Plan", rows)
+    render.written(written)
+    if not result.tracking.reached_goal:
+        render.warn("the simulated robot did not reach the goal within the time limit")
+
+
+def plan_summary(
+    result: Any,
+    map_file: Path,
+    start_xy: tuple[float, float],
+    goal_xy: tuple[float, float],
+    dynamic: int = 0,
+) -> dict[str, str]:
+    """The key figures of a plan, as printed by ``slamcli plan`` and the demo."""
     tr = result.tracking
     clearance = result.min_clearance_m
     rows = {
@@ -156,8 +171,5 @@ def plan(
         "cross-track error": f"RMS {tr.cross_track_rms_m:.3f} m, max {tr.cross_track_max_m:.3f} m",
     }
     if dynamic:
-        rows["dynamic obstacles"] = f"{len(dynamic)}: {tr.replans} replans, {tr.waits} waits"
-    render.key_values("Plan", rows)
-    render.written(written)
-    if not tr.reached_goal:
-        render.warn("the simulated robot did not reach the goal within the time limit")
+        rows["dynamic obstacles"] = f"{dynamic}: {tr.replans} replans, {tr.waits} waits"
+    return rows

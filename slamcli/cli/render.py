@@ -69,6 +69,11 @@ def print_json(data: Any) -> None:
     sys.stdout.flush()
 
 
+def heading(text: str) -> None:
+    """A section heading between the blocks of a command that does several things."""
+    out.print(f"\n[bold]{text}[/]", markup=True)
+
+
 def plain(text: str) -> None:
     """Text exactly as given on stdout, without markup (file contents such as TOML)."""
     sys.stdout.write(text)
