@@ -131,7 +131,7 @@ def inverse_observation(pose: F64, z: F64) -> tuple[F64, F64, F64]:
     return lm, gr, gz
 
 
-def _joseph(p: F64, k: F64, a: F64, s: F64) -> None:
+def joseph_correction(p: F64, k: F64, a: F64, s: F64) -> None:
     """The Joseph-form update for a sparse H in place: ``P - K Aᵀ - A Kᵀ + K S Kᵀ`` with
     ``A = P Hᵀ`` and ``S = H P Hᵀ + R``, as one rank-four correction."""
     u = np.hstack([k, a])
@@ -372,7 +372,7 @@ class LandmarkEkf:
         dx = k @ inn.nu
         self._x[:n] += dx
         self._x[2] = wrap_angle(self._x[2])
-        _joseph(p, k, a, inn.S)
+        joseph_correction(p, k, a, inn.S)
 
     def update_iterated(self, inn: Innovation, z: F64, r_cov: F64, iterations: int) -> Innovation:
         """An iterated EKF update (Gauss-Newton on the measurement, Bell and Cathey 1993).
@@ -415,7 +415,7 @@ class LandmarkEkf:
                 break
         self._x[:n] = x0 + dx
         self._x[2] = wrap_angle(self._x[2])
-        _joseph(p, k, a, last.S)
+        joseph_correction(p, k, a, last.S)
         return last
 
     # -- map management ---------------------------------------------------------------------
@@ -468,7 +468,7 @@ class LandmarkEkf:
         nu = -(self._x[i : i + 2] - self._x[j : j + 2])
         self._x[:n] += k @ nu
         self._x[2] = wrap_angle(self._x[2])
-        _joseph(p, k, a, s)
+        joseph_correction(p, k, a, s)
         self.remove_landmark(drop)
 
     def remove_landmark(self, slot: int) -> None:
