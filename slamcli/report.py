@@ -302,7 +302,7 @@ def plot_landmark_run(
                     *_decimated(np.stack([t[ok], dr_err[ok]], axis=1)).T,
                     color="tab:orange",
                     lw=0.8,
-                    label=f"dead reckoning, rmse {rmse:.3f} m",
+                    label=f"dead reckoning (same alignment), rmse {rmse:.3f} m",
                 )
                 _log_y(upper)
         upper.set_ylabel("position error (m)")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import itertools
 import logging
 from collections.abc import Mapping
-from dataclasses import asdict, dataclass, field, is_dataclass
+from dataclasses import asdict, dataclass, field, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -198,6 +198,8 @@ def _evaluate_planar(
                     )
                     metrics["evaluation"]["trajectory"] = "smoothed"
                     metrics["evaluation"]["nees"] = filt.to_dict().get("nees")
+                    # The report's NEES panel shows the filter's, the one that has covariances.
+                    evaluation = replace(evaluation, nees=filt.nees)
                     metrics["filtered"] = {
                         "ate": filt.ate.to_dict(),
                         "ate_unaligned": filt.ate_unaligned.to_dict(),
