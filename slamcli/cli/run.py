@@ -108,9 +108,11 @@ DOCS = {
     Reads an MRCLAM folder (--robot N), a Victoria Park file (GTSAM format), a
     'slamcli synth landmarks' folder or an MCAP log with odometry and landmark observations.
     Known correspondences when the log has landmark ids, nearest neighbour with chi-square
-    gating (or JCBB) otherwise (--ignore-ids). Writes trajectory.tum, landmarks.csv,
-    report.png and run.json (ATE after SE(2) alignment, landmark RMSE, NEES/NIS when the log
-    has ground truth). Settings: 'slamcli config dump ekf'.
+    gating (or JCBB) otherwise (--ignore-ids). Writes trajectory.tum (the path smoothed
+    against the final map), trajectory_filtered.tum (the filter's own path), landmarks.csv
+    (with covariances), report.png and run.json (ATE after SE(2) alignment, landmark RMSE,
+    NEES/NIS when the log has ground truth). --map adds an occupancy map. Settings:
+    'slamcli config dump ekf'.
 
     Example: [bold]slamcli run ekf MRCLAM_Dataset6 --robot 2 --out runs/mrclam2[/]
     """,
