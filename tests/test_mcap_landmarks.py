@@ -281,6 +281,9 @@ def test_convert_then_info_lists_the_landmark_topic(tmp_path: Path) -> None:
     res = runner.invoke(app, ["info", str(out)])
     assert res.exit_code == 0, res.output
     assert "/landmarks" in res.stdout and "slamcli.LandmarkObservations" in res.stdout
+    n_stamps = len({r["t"] for r in _csv("measurements.csv")})
+    assert f"{n_stamps} messages on /landmarks" in res.stdout
+    assert "paired RGB-D" not in res.stdout
     res = runner.invoke(app, ["info", str(out), "--json"])
     data = json.loads(res.stdout)
     streams = {s["name"]: s for s in data["streams"]}

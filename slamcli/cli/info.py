@@ -139,6 +139,16 @@ def _show(info: SourceInfo) -> None:
     items: dict[str, Any]
     if "landmark_observations" in d:
         items = _landmark_items(info)
+    elif d.get("landmark_topic"):
+        # An MCAP landmark log: odometry and observations, no images to pair.
+        items = {
+            "landmark observations": f"{d.get('landmark_messages', 0)} messages on "
+            f"{d['landmark_topic']}",
+        }
+        if d.get("odometry_topic"):
+            items["odometry"] = str(d["odometry_topic"])
+        if info.frames:
+            items["frames"] = f"{info.frames} paired RGB-D frames"
     else:
         items = {"frames": f"{info.frames} paired RGB-D frames"}
     if d.get("rgb_topic"):
