@@ -453,6 +453,27 @@ class LandmarkSource(SourceBase):
             self.stats.read += 1
             yield frame
 
+    def _info(
+        self,
+        streams: list[StreamInfo],
+        gt: Trajectory | None,
+        details: dict[str, Any],
+        problems: list[str],
+        progress: ProgressFn | None,
+    ) -> SourceInfo:
+        """The SourceInfo every landmark source returns, from its streams and findings."""
+        if progress is not None:
+            progress(1, 1)
+        return SourceInfo(
+            format=self.format_name,
+            path=str(self.path),
+            streams=streams,
+            frames=len(self.odometry) + self.observations.frames,
+            groundtruth=len(gt) if gt is not None else 0,
+            problems=problems,
+            details=details,
+        )
+
     def _common_info(self) -> tuple[dict[str, Any], list[str]]:
         """Details and problems every landmark source reports."""
         odo, obs = self.odometry, self.observations
@@ -743,19 +764,9 @@ class MrclamSource(LandmarkSource):
         if self.unknown_barcodes:
             problems.append(
                 f"{int(self.unknown_rows.size)} measurement(s) of barcodes that are no "
-                f"landmark's or robot's are skipped: {_counts(self.unknown_barcodes)}"
+                f"landmark's or robot's are ignored: {_counts(self.unknown_barcodes)}"
             )
-        if progress is not None:
-            progress(1, 1)
-        return SourceInfo(
-            format=self.format_name,
-            path=str(self.path),
-            streams=streams,
-            frames=len(self.odometry) + self.observations.frames,
-            groundtruth=len(gt) if gt is not None else 0,
-            problems=problems,
-            details=details,
-        )
+        return self._info(streams, gt, details, problems, progress)
 
 
 def _counts(counter: dict[int, int]) -> str:
@@ -895,20 +906,11 @@ class VictoriaParkSource(LandmarkSource):
                 np.linalg.norm(np.diff(self._planar[:, :2], axis=0), axis=1).sum()
             ),
         )
-        if progress is not None:
-            progress(1, 1)
-        return SourceInfo(
-            format=self.format_name,
-            path=str(self.path),
-            streams=[
-                self._stream("ODOMETRY", "odometry", self.odometry.stamps_ns[1:], name),
-                self._stream("LANDMARK", "landmarks", self.observations.stamps_ns, name),
-            ],
-            frames=len(self.odometry) + self.observations.frames,
-            groundtruth=0,
-            problems=problems,
-            details=details,
-        )
+        streams = [
+            self._stream("ODOMETRY", "odometry", self.odometry.stamps_ns[1:], name),
+            self._stream("LANDMARK", "landmarks", self.observations.stamps_ns, name),
+        ]
+        return self._info(streams, None, details, problems, progress)
 
 
 def _dead_reckon(steps: F64) -> F64:
@@ -1015,17 +1017,7 @@ class LandmarkWorldSource(LandmarkSource):
         if gt is not None:
             streams.append(self._stream("groundtruth.tum", "pose", gt.stamps_ns, "TUM poses"))
             details["groundtruth_from"] = "groundtruth.tum"
-        if progress is not None:
-            progress(1, 1)
-        return SourceInfo(
-            format=self.format_name,
-            path=str(self.path),
-            streams=streams,
-            frames=len(self.odometry) + self.observations.frames,
-            groundtruth=len(gt) if gt is not None else 0,
-            problems=problems,
-            details=details,
-        )
+        return self._info(streams, gt, details, problems, progress)
 
 
 __all__ = [
