@@ -36,7 +36,7 @@ from numpy.typing import NDArray
 
 from slamcli.config import setting
 from slamcli.ekf.association import UNMATCHED, Candidates, jcbb, nearest_neighbour
-from slamcli.ekf.filter import LandmarkEkf, arc_step, inverse_observation
+from slamcli.ekf.filter import LandmarkEkf, arc_step, inverse_observation, relative_motion
 from slamcli.ekf.smoother import Event, Observation, Row, Step, Velocity, smooth_path
 from slamcli.errors import PipelineError
 from slamcli.geometry.planar import planar_to_se3, se3_to_planar, wrap_angle
@@ -274,8 +274,6 @@ class EkfSlam:
                 ekf.predict_relative(delta, step_cov)
                 self._events.append(Step(delta, step_cov))
                 assert self._dr is not None
-                from slamcli.ekf.filter import relative_motion
-
                 self._dr = relative_motion(self._dr, delta)[0]
             self._odom_pose = pose
             self._t_ns = frame.stamp_ns if self._t_ns is None else max(self._t_ns, frame.stamp_ns)
