@@ -17,7 +17,7 @@ from slamcli.formats import open_source
 from slamcli.formats.mcap.records import ImageRecord
 from slamcli.formats.mcap.source import McapSource, _StreamPairer
 from slamcli.formats.mcap.write import write_source_mcap
-from slamcli.formats.tum_rgbd import associate_stamps
+from slamcli.formats.pairing import associate_stamps
 from slamcli.types import RgbdFrame
 
 runner = CliRunner()

@@ -14,13 +14,9 @@ from hypothesis import strategies as st
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats import open_source
 from slamcli.formats.camera import save_camera_file
+from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.text import parse_stamp_ns
-from slamcli.formats.tum_rgbd import (
-    TumRgbdSource,
-    associate_stamps,
-    depth_scale_problem,
-    read_image_list,
-)
+from slamcli.formats.tum_rgbd import TumRgbdSource, depth_scale_problem, read_image_list
 from slamcli.types import ImageFrame, ImuFrame, PinholeCamera, RgbdFrame
 
 T0 = 1305031235.0

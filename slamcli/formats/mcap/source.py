@@ -61,8 +61,8 @@ from slamcli.formats.mcap.records import (
     TwistRecord,
 )
 from slamcli.formats.mcap.tf import TfBuffer
+from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.text import format_stamp
-from slamcli.formats.tum_rgbd import associate_stamps
 from slamcli.geometry import interpolate_planar, interpolate_poses, se3_to_planar
 from slamcli.types import (
     ImageFrame,
