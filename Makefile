@@ -1,11 +1,13 @@
-# make demo  - set everything up and run the demo on the bundled sample data
-# make test  - set everything up and run the test suite
+# make demo         - set everything up and run the demo on the bundled sample data
+# make test         - set everything up and run the test suite
+# make constraints  - re-resolve the newest releases pyproject.toml allows into constraints.txt
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
+PIP    := --quiet --disable-pip-version-check
 
-.PHONY: demo test setup syslibs lint bench clean
+.PHONY: demo test setup syslibs lint bench constraints clean
 
 demo: setup
 	$(VENV)/bin/slamcli demo --out runs/demo --force
@@ -18,10 +20,24 @@ setup: syslibs $(STAMP)
 syslibs:
 	@sh scripts/ensure-syslibs.sh
 
-$(STAMP): pyproject.toml
+# Installs are reproducible: every package comes at the exact version constraints.txt names, so
+# a fresh clone gets what the suite last passed with. pyproject.toml keeps ranges for users.
+$(STAMP): pyproject.toml constraints.txt
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install --quiet --disable-pip-version-check -e '.[test]'
+	$(PY) -m pip install $(PIP) -c constraints.txt -e '.[test]'
 	@touch $(STAMP)
+
+# A deliberate upgrade: resolve in a scratch environment, then run `make test` and commit
+# constraints.txt together with whatever the new versions required.
+constraints:
+	rm -rf .venv-constraints
+	$(PYTHON) -m venv .venv-constraints
+	.venv-constraints/bin/python -m pip install $(PIP) -e '.[test]'
+	{ echo "# Exact versions make and CI install with (pip install -c constraints.txt)."; \
+	  echo "# Regenerate with 'make constraints'; see README.md, 'Installs'."; \
+	  .venv-constraints/bin/python -m pip freeze --exclude-editable; } > constraints.txt.new
+	mv constraints.txt.new constraints.txt
+	rm -rf .venv-constraints
 
 lint: setup
 	$(VENV)/bin/ruff check .
@@ -32,4 +48,4 @@ bench: setup
 	@for f in benchmarks/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
 
 clean:
-	rm -rf $(VENV) runs .pytest_cache .mypy_cache .ruff_cache
+	rm -rf $(VENV) .venv-constraints runs .pytest_cache .mypy_cache .ruff_cache
