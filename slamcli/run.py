@@ -29,6 +29,7 @@ class RunOutcome:
     counts: dict[str, Any] = field(default_factory=dict)
     outputs: list[Path] = field(default_factory=list)
     data_loss: list[str] = field(default_factory=list)
+    evaluation: str = "se3"
 
 
 def run_pipeline(
@@ -49,21 +50,24 @@ def run_pipeline(
 
     Writes ``trajectory.tum``, ``report.png`` (when ground truth exists), ``result.mcap`` (with
     ``mcap=True``), ``keyframes.tum``, ``mesh.ply`` (and ``mesh.glb`` with ``glb=True``) and
-    ``points.ply`` when the pipeline makes them, and ``run.json`` (schema in README.md). ATE
-    and RPE against the source's ground truth go into the metrics with SE(3) alignment.
+    ``points.ply`` when the pipeline makes them, and ``run.json`` (schema in README.md). The
+    pipeline's declared evaluation decides how it is scored against the source's ground truth:
+    ``se2`` (planar ATE, landmark RMSE, NEES) or ATE and RPE after ``se3`` or ``sim3``
+    alignment; ``metrics["alignment"]`` records which.
     """
     from slamcli.formats import open_source
-    from slamcli.pipelines import get_pipeline
+    from slamcli.pipelines import get_pipeline, get_spec
 
     run = RunDir(out, force=force)
     timings = Timings()
+    spec = get_spec(pipeline)
     pipeline_cls = get_pipeline(pipeline)
     pipe = pipeline_cls(config)
     with open_source(input_path, **dict(source_options or {})) as source:
         with timings.stage("open"):
             info = source.info()
             # Planar pipelines start at the log's ground-truth pose when it has one.
-            if hasattr(pipe, "set_start") and hasattr(source, "start_pose"):
+            if spec.evaluation == "se2":
                 pipe.set_start(source.start_pose())
         # info's count is an estimate for some formats (MCAP pairs by log time there): it sizes
         # the progress bar but never limits the run.
@@ -80,7 +84,7 @@ def run_pipeline(
         # After the frames: a source may give ground truth at the times of the frames it read.
         with timings.stage("groundtruth"):
             groundtruth = source.groundtruth()
-            true_landmarks = source.landmark_truth() if hasattr(source, "landmark_truth") else None
+            true_landmarks = source.landmark_truth()
         stats = source.stats
     if result.trajectory is None or len(result.trajectory) == 0:
         raise PipelineError(f"{input_path}: the {pipeline} pipeline produced no poses")
@@ -93,11 +97,14 @@ def run_pipeline(
 
     # The pipeline's own figures (per-stage ms/frame, loop closures, ...) plus the evaluation.
     metrics: dict[str, Any] = dict(result.metrics)
-    if result.landmarks is not None:
+    metrics["alignment"] = spec.evaluation
+    if spec.evaluation == "se2":
         metrics.update(_evaluate_planar(groundtruth, true_landmarks, result, run, timings))
         outputs.append(run.file("report.png"))
     elif groundtruth is not None:
-        metrics.update(_evaluate(groundtruth, result.trajectory, run, timings, result.mesh))
+        metrics.update(
+            _evaluate(groundtruth, result.trajectory, run, timings, spec.evaluation, result.mesh)
+        )
         if "report.png" in run.outputs:
             outputs.append(run.file("report.png"))
     else:
@@ -136,7 +143,15 @@ def run_pipeline(
     )
     outputs.append(run.file("run.json"))
     return RunOutcome(
-        run.path, result, Path(input_path), info, metrics, counts, outputs, list(stats.data_loss)
+        run.path,
+        result,
+        Path(input_path),
+        info,
+        metrics,
+        counts,
+        outputs,
+        list(stats.data_loss),
+        evaluation=spec.evaluation,
     )
 
 
@@ -145,6 +160,7 @@ def _evaluate(
     estimate: Trajectory,
     run: RunDir,
     timings: Timings,
+    align: str,
     mesh: TriangleMesh | None = None,
 ) -> dict[str, Any]:
     from slamcli.evaluation import evaluate
@@ -152,7 +168,7 @@ def _evaluate(
 
     with timings.stage("evaluate"):
         try:
-            ev = evaluate(groundtruth, estimate, align="se3", rpe_delta=1)
+            ev = evaluate(groundtruth, estimate, align=align, rpe_delta=1)
         except InputError as exc:
             log.warning("no accuracy figures: %s", exc.msg)
             return {}

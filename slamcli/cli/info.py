@@ -10,27 +10,7 @@ from rich.markup import escape
 
 from slamcli.cli import render
 from slamcli.cli.common import boundary
-from slamcli.cli.source_options import (
-    DEFAULTS,
-    CameraInfoTopic,
-    CameraOpt,
-    Cx,
-    Cy,
-    DepthFactor,
-    DepthTopic,
-    DtOffset,
-    Fx,
-    Fy,
-    GtFrame,
-    GtTopic,
-    IgnoreIds,
-    MaxDt,
-    RgbTopic,
-    Robot,
-    SourceOptions,
-    Strict,
-    Undistort,
-)
+from slamcli.cli.source_options import SourceOptions, source_options
 from slamcli.errors import DataLossError
 
 if TYPE_CHECKING:
@@ -59,6 +39,7 @@ def register(app: typer.Typer) -> None:
 
 
 @boundary
+@source_options()
 def info(
     input: Annotated[
         Path,
@@ -74,33 +55,17 @@ def info(
     json_out: Annotated[
         bool, typer.Option("--json", help="Print one JSON object on stdout instead of tables.")
     ] = False,
-    max_dt: MaxDt = DEFAULTS.max_dt,
-    dt_offset: DtOffset = DEFAULTS.dt_offset,
-    depth_factor: DepthFactor = None,
-    camera: CameraOpt = None,
-    fx: Fx = None,
-    fy: Fy = None,
-    cx: Cx = None,
-    cy: Cy = None,
-    undistort: Undistort = False,
-    strict: Strict = False,
-    rgb_topic: RgbTopic = None,
-    depth_topic: DepthTopic = None,
-    camera_info_topic: CameraInfoTopic = None,
-    gt_topic: GtTopic = None,
-    gt_frame: GtFrame = None,
-    robot: Robot = None,
-    ignore_ids: IgnoreIds = False,
+    *,
+    source: SourceOptions,
 ) -> None:
     from slamcli.formats import open_source
 
-    opts = SourceOptions.pick(locals())
-    with open_source(input, **opts.open_kwargs()) as source:
+    with open_source(input, **source.open_kwargs()) as src:
         if deep:
             with render.progress("decoding images") as progress:
-                result = source.info(deep=True, progress=progress)
+                result = src.info(deep=True, progress=progress)
         else:
-            result = source.info()
+            result = src.info()
     if json_out:
         render.print_json(result.to_dict())
     else:

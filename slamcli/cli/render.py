@@ -212,7 +212,7 @@ def run_summary(outcome: RunOutcome) -> None:
         facts["camera"] = info.camera_source
     key_values("Input", facts)
     ev = outcome.metrics.get("evaluation")
-    if outcome.result.landmarks is not None:
+    if outcome.evaluation == "se2":
         _planar_summary(outcome.metrics, outcome.counts)
     elif ev:
         stats = [("ATE (m)", ev["ate"])]

@@ -1,26 +1,20 @@
 """Options shared by every command that reads a source (``info``, ``run dense``, ``run ekf``, ...).
 
-A command declares the options with the ``Annotated`` aliases below and their defaults from
-:data:`DEFAULTS`, then collects them with :meth:`SourceOptions.pick`::
+A command declares them once, with :func:`source_options`, and receives one
+:class:`SourceOptions`::
 
-    def cmd(
-        input: Path,
-        max_dt: MaxDt = DEFAULTS.max_dt,
-        dt_offset: DtOffset = DEFAULTS.dt_offset,
-        depth_factor: DepthFactor = None,
-        camera: CameraOpt = None,
-        fx: Fx = None, fy: Fy = None, cx: Cx = None, cy: Cy = None,
-        undistort: Undistort = False,
-        strict: Strict = False,
-    ) -> None:
-        opts = SourceOptions.pick(locals())
-        with open_source(input, **opts.open_kwargs()) as source: ...
+    @source_options()
+    def cmd(input: Path, source: SourceOptions) -> None:
+        with open_source(input, **source.open_kwargs()) as src: ...
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
+from collections.abc import Callable, Collection
 from dataclasses import dataclass, fields
-from typing import Annotated, Any
+from typing import Annotated, Any, TypeVar
 
 import typer
 
@@ -198,3 +192,63 @@ class SourceOptions:
 
 DEFAULTS = SourceOptions()
 """Default values, for commands' parameter defaults."""
+
+_OPTIONS: dict[str, Any] = {
+    "max_dt": MaxDt,
+    "dt_offset": DtOffset,
+    "depth_factor": DepthFactor,
+    "camera": CameraOpt,
+    "fx": Fx,
+    "fy": Fy,
+    "cx": Cx,
+    "cy": Cy,
+    "undistort": Undistort,
+    "strict": Strict,
+    "robot": Robot,
+    "ignore_ids": IgnoreIds,
+    "rgb_topic": RgbTopic,
+    "depth_topic": DepthTopic,
+    "camera_info_topic": CameraInfoTopic,
+    "odom_topic": OdomTopic,
+    "gt_topic": GtTopic,
+    "gt_frame": GtFrame,
+    "landmark_topic": LandmarkTopic,
+}
+"""The typer option of each :class:`SourceOptions` field."""
+
+F = TypeVar("F", bound=Callable[..., Any])
+
+
+def source_options(only: Collection[str] | None = None) -> Callable[[F], F]:
+    """Give a command the source options (all, or the fields named in ``only``).
+
+    The options are appended to the command's signature, which typer reads, and the command
+    is called with them collected into its ``source: SourceOptions`` parameter.
+    """
+    names = [f.name for f in fields(SourceOptions) if only is None or f.name in only]
+    unknown = set(only or ()) - set(names)
+    if unknown:
+        raise ValueError(f"not source options: {', '.join(sorted(unknown))}")
+
+    def decorate(fn: F) -> F:
+        signature = inspect.signature(fn, eval_str=True)
+        own = [p for p in signature.parameters.values() if p.name != "source"]
+        added = [
+            inspect.Parameter(
+                name,
+                inspect.Parameter.KEYWORD_ONLY,
+                annotation=_OPTIONS[name],
+                default=getattr(DEFAULTS, name),
+            )
+            for name in names
+        ]
+
+        @functools.wraps(fn)
+        def wrapper(*args: Any, **kwargs: Any) -> Any:
+            picked = {name: kwargs.pop(name) for name in names if name in kwargs}
+            return fn(*args, source=SourceOptions(**picked), **kwargs)
+
+        wrapper.__signature__ = signature.replace(parameters=[*own, *added])  # type: ignore[attr-defined]
+        return wrapper  # type: ignore[return-value]
+
+    return decorate

@@ -8,10 +8,14 @@ from pathlib import Path
 from types import TracebackType
 from typing import Any, Protocol, TypeVar
 
+import numpy as np
+from numpy.typing import NDArray
+
 from slamcli.types import (
     ImageFrame,
     ImuFrame,
     LandmarkFrame,
+    LandmarkMap,
     OdometryFrame,
     PinholeCamera,
     ProgressFn,
@@ -92,6 +96,14 @@ class Source(Protocol):
 
     def groundtruth(self) -> Trajectory | None: ...
 
+    def start_pose(self) -> NDArray[np.float64] | None:
+        """The ground-truth pose (x, y, yaw) at the first frame, for planar pipelines."""
+        ...
+
+    def landmark_truth(self) -> LandmarkMap | None:
+        """The surveyed landmark positions, for scoring a landmark map."""
+        ...
+
 
 _S = TypeVar("_S", bound="SourceBase")
 
@@ -110,6 +122,14 @@ class SourceBase:
 
     def close(self) -> None:
         """Release files and caches (nothing by default)."""
+
+    def start_pose(self) -> NDArray[np.float64] | None:
+        """The ground-truth pose (x, y, yaw) at the first frame; None for logs without one."""
+        return None
+
+    def landmark_truth(self) -> LandmarkMap | None:
+        """The surveyed landmark positions; None for logs without landmarks."""
+        return None
 
     def __enter__(self: _S) -> _S:
         return self

@@ -1,27 +1,113 @@
 """SLAM pipelines. Each consumes frames through ``process(frame)`` and returns a
-:class:`~slamcli.types.SlamResult` from ``finish()``; none prints or touches files."""
+:class:`~slamcli.types.SlamResult` from ``finish()``; none prints or touches files.
+
+A pipeline is one module and one :data:`PIPELINES` entry. The entry is a light declaration
+(help, example, products, evaluation) so that the CLI can list and document every pipeline
+without importing the modules, which pull in numpy, OpenCV and Open3D.
+"""
 
 from __future__ import annotations
 
-from typing import Any
+from dataclasses import dataclass
+from typing import Any, Literal
 
-PIPELINES: dict[str, str] = {
-    "odometry": "slamcli.pipelines.odometry:RgbdOdometry",
-    "dense": "slamcli.pipelines.dense:DenseSlam",
-    "ekf": "slamcli.pipelines.ekf:EkfSlam",
+Evaluation = Literal["se2", "se3", "sim3"]
+
+
+@dataclass(frozen=True)
+class PipelineSpec:
+    """What is known about a pipeline before its module is imported.
+
+    Attributes:
+        target: the class, as ``module:Class``.
+        help: the ``slamcli run NAME --help`` text (rich markup); its first line is the summary.
+        example: one ``slamcli run NAME ...`` command line that works from the repository root.
+        produces: the run folder files the pipeline's results are written to.
+        evaluation: how the trajectory is scored against ground truth: ``se2`` (planar: ATE
+            after SE(2) alignment, landmark RMSE, NEES; the pipeline has ``set_start(pose)``
+            taking the source's start pose (x, y, yaw) or None), ``se3`` or ``sim3`` (ATE and
+            RPE after that alignment, as ``slamcli eval --align``).
+    """
+
+    target: str
+    help: str
+    example: str
+    produces: tuple[str, ...]
+    evaluation: Evaluation
+
+    @property
+    def doc(self) -> str:
+        """The help text with the example, as a command docstring."""
+        return f"{self.help}\n\nExample: [bold]{self.example}[/]"
+
+
+PIPELINES: dict[str, PipelineSpec] = {
+    "odometry": PipelineSpec(
+        target="slamcli.pipelines.odometry:RgbdOdometry",
+        help="""Frame-to-frame RGB-D odometry: the simplest tracker, the baseline for others.
+
+Registers each frame to the previous one (Open3D's multi-scale photometric + geometric kernel, \
+seeded by a constant-velocity prior). Writes trajectory.tum, report.png and run.json (with \
+ATE/RPE after SE(3) alignment when the input has ground truth). Settings: 'slamcli config dump \
+odometry'. Exits with 3 when frames had to be skipped.""",
+        example="slamcli run odometry sample_data/rgbd_room --out runs/room_odometry "
+        "--max-frames 10 --force",
+        produces=("trajectory.tum", "report.png"),
+        evaluation="se3",
+    ),
+    "dense": PipelineSpec(
+        target="slamcli.pipelines.dense:DenseSlam",
+        help="""Dense RGB-D SLAM: a coloured mesh and a trajectory from an RGB-D log.
+
+Tracks each frame against a ray-cast of the fused TSDF volume (seeded by ORB features and PnP), \
+fuses trusted frames, closes loops between keyframes and re-integrates with the optimised \
+poses. Writes trajectory.tum, keyframes.tum, mesh.ply, points.ply, report.png and run.json \
+(ATE/RPE after SE(3) alignment when the input has ground truth). Settings: 'slamcli config \
+dump dense'. Exits with 3 when frames had to be skipped.""",
+        example="slamcli run dense sample_data/rgbd_room --out runs/room_dense --max-frames 8 "
+        "--set voxel_size_m=0.02 --force",
+        produces=("trajectory.tum", "keyframes.tum", "mesh.ply", "points.ply", "report.png"),
+        evaluation="se3",
+    ),
+    "ekf": PipelineSpec(
+        target="slamcli.pipelines.ekf:EkfSlam",
+        help="""EKF landmark SLAM: a planar trajectory and a landmark map from odometry and \
+range-bearing observations.
+
+Reads an MRCLAM folder (--robot N), a Victoria Park file (GTSAM format), a 'slamcli synth \
+landmarks' folder or an MCAP log with odometry and landmark observations. Known \
+correspondences when the log has landmark ids, nearest neighbour with chi-square gating (or \
+JCBB) otherwise (--ignore-ids). Writes trajectory.tum (the path smoothed against the final \
+map), trajectory_filtered.tum (the filter's own path), landmarks.csv (with covariances), \
+report.png and run.json (ATE after SE(2) alignment, landmark RMSE, NEES/NIS when the log has \
+ground truth). --map adds an occupancy map. Settings: 'slamcli config dump ekf'.""",
+        example="slamcli run ekf sample_data/landmarks --out runs/landmarks --map --force",
+        produces=(
+            "trajectory.tum",
+            "trajectory_filtered.tum",
+            "landmarks.csv",
+            "report.png",
+        ),
+        evaluation="se2",
+    ),
 }
-"""Pipeline classes by name, as ``module:Class`` so heavy modules load only when used."""
+"""Pipelines by name. Adding one is one entry here and one module."""
 
 
-def get_pipeline(name: str) -> Any:
-    """The pipeline class registered under ``name``."""
-    import importlib
-
+def get_spec(name: str) -> PipelineSpec:
+    """The declaration of the pipeline ``name``; ConfigError names the known ones."""
     from slamcli.errors import ConfigError
 
     if name not in PIPELINES:
         raise ConfigError(
             f"unknown pipeline {name!r}", hint=f"choose one of {', '.join(PIPELINES)}"
         )
-    module, _, cls = PIPELINES[name].partition(":")
+    return PIPELINES[name]
+
+
+def get_pipeline(name: str) -> Any:
+    """The pipeline class registered under ``name`` (its module is imported now)."""
+    import importlib
+
+    module, _, cls = get_spec(name).target.partition(":")
     return getattr(importlib.import_module(module), cls)

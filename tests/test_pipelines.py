@@ -1,0 +1,43 @@
+"""The pipeline registry: light declarations the CLI reads without importing the pipelines."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+import typing
+
+import pytest
+
+from slamcli.errors import ConfigError
+from slamcli.pipelines import PIPELINES, Evaluation, get_pipeline, get_spec
+
+
+@pytest.mark.parametrize("name", sorted(PIPELINES))
+def test_declaration_matches_the_class(name: str) -> None:
+    spec = PIPELINES[name]
+    cls = get_pipeline(name)
+    assert cls.name == name
+    assert cls.consumes and cls.config_class
+    assert spec.evaluation in typing.get_args(Evaluation)
+    assert spec.example.startswith(f"slamcli run {name} ")
+    assert "trajectory.tum" in spec.produces
+    assert spec.example in spec.doc
+    if spec.evaluation == "se2":
+        # run_pipeline hands planar pipelines the source's start pose.
+        assert callable(cls.set_start)
+
+
+def test_unknown_pipeline_names_the_known_ones() -> None:
+    with pytest.raises(ConfigError, match="unknown pipeline 'visual'") as err:
+        get_spec("visual")
+    assert "odometry" in (err.value.hint or "")
+
+
+def test_cli_start_imports_no_pipeline_module() -> None:
+    code = (
+        "import sys, slamcli.cli.app; "
+        "print(sorted(m for m in sys.modules if m.startswith('slamcli.pipelines.') "
+        "or m in ('numpy', 'cv2', 'open3d')))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
