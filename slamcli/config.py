@@ -362,15 +362,20 @@ def _type_name(tp: Any) -> str:
 def _range_text(meta: Mapping[str, Any]) -> str:
     if meta.get("choices") is not None:
         return "one of " + ", ".join(_toml_value(c) for c in meta["choices"])
-    low = f"[{meta['min']:g}" if "min" in meta else f"({meta['gt']:g}" if "gt" in meta else ""
-    high = f"{meta['max']:g}]" if "max" in meta else f"{meta['lt']:g})" if "lt" in meta else ""
+    # Integers print in full: ``:g`` would show a bound such as 2**31 - 1 as 2.14748e+09.
+    b = {k: str(v) if isinstance(v, int) else f"{v:g}" for k, v in meta.items() if k in _BOUNDS}
+    low = f"[{b['min']}" if "min" in b else f"({b['gt']}" if "gt" in b else ""
+    high = f"{b['max']}]" if "max" in b else f"{b['lt']})" if "lt" in b else ""
     if low and high:
         return f"in {low}, {high}"
     if low:
-        return f">= {meta['min']:g}" if "min" in meta else f"> {meta['gt']:g}"
+        return f">= {b['min']}" if "min" in b else f"> {b['gt']}"
     if high:
-        return f"<= {meta['max']:g}" if "max" in meta else f"< {meta['lt']:g}"
+        return f"<= {b['max']}" if "max" in b else f"< {b['lt']}"
     return ""
+
+
+_BOUNDS = ("min", "max", "gt", "lt")
 
 
 def _expected(f: dataclasses.Field[Any], tp: Any) -> str:
