@@ -54,11 +54,43 @@ def run_pipeline(
     pipeline's declared evaluation decides how it is scored against the source's ground truth:
     ``se2`` (planar ATE, landmark RMSE, NEES) or ATE and RPE after ``se3`` or ``sim3``
     alignment; ``metrics["alignment"]`` records which.
+
+    The folder is all or nothing (:class:`~slamcli.rundir.RunDir`): ``out`` is checked for
+    writing before any work, and a failed or interrupted run leaves an earlier folder as it was.
     """
+    with RunDir(out, force=force) as run:
+        outcome = _run_into(
+            run,
+            input_path,
+            pipeline,
+            config=config,
+            source_options=source_options,
+            max_frames=max_frames,
+            command=command,
+            mcap=mcap,
+            glb=glb,
+            progress=progress,
+        )
+    return replace(outcome, outputs=[run.final(p) for p in outcome.outputs])
+
+
+def _run_into(
+    run: RunDir,
+    input_path: str | Path,
+    pipeline: str,
+    *,
+    config: Any,
+    source_options: Mapping[str, Any] | None,
+    max_frames: int | None,
+    command: str,
+    mcap: bool,
+    glb: bool,
+    progress: ProgressFn | None,
+) -> RunOutcome:
+    """:func:`run_pipeline`'s work, writing into the staged ``run``."""
     from slamcli.formats import open_source
     from slamcli.pipelines import get_pipeline, get_spec
 
-    run = RunDir(out, force=force)
     timings = Timings()
     spec = get_spec(pipeline)
     pipeline_cls = get_pipeline(pipeline)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -287,6 +288,33 @@ def test_cli_config_dump_dense_when_registered() -> None:
     assert set(tomllib.loads(res.stdout)["dense"]) == {
         f.name for f in dataclasses.fields(cls) if getattr(defaults, f.name) is not None
     }
+
+
+def test_cli_config_dump_dense_gives_every_setting_a_range() -> None:
+    res = runner.invoke(app, ["config", "dump", "dense"])
+    assert res.exit_code == 0, res.output
+    comment: list[str] = []
+    keys = 0
+    for line in res.stdout.splitlines()[2:]:
+        if line.startswith("# "):
+            comment.append(line[2:])
+            continue
+        key = line.split(" = ")[0]
+        text = " ".join(comment)
+        assert re.search(r"(in [\[(]|>=? |<=? |one of )[^()]*\)$", text), (key, text)
+        comment = []
+        keys += 1
+    assert keys == len(dataclasses.fields(get_pipeline("dense").config_class))
+
+
+@pytest.mark.parametrize("key", ["dense.match_ratio", "match_ratio"])
+def test_cli_run_dense_refuses_a_setting_out_of_range(tmp_path: Path, key: str) -> None:
+    res = runner.invoke(
+        app, ["run", "dense", str(tmp_path), "--out", str(tmp_path / "out"), "--set", f"{key}=-1"]
+    )
+    assert res.exit_code == 1, res.output
+    assert "dense.match_ratio: expected a number in (0, 1], got -1" in res.output
+    assert not (tmp_path / "out").exists()
 
 
 def test_cli_config_dump_applies_config_and_sets(tmp_path: Path) -> None:

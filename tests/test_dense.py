@@ -159,3 +159,39 @@ def test_config_is_checked() -> None:
 
     with pytest.raises(ConfigError, match=r"dense\.depth_min_m"):
         DenseConfig(depth_min_m=5.0, depth_max_m=3.0)
+
+
+def test_volume_starts_at_the_first_frame_and_grows_with_the_scene() -> None:
+    from slamcli.pipelines.dense import _open3d, _Volume
+    from slamcli.types import PinholeCamera
+
+    cam = PinholeCamera(320, 240, 256.0, 256.0, 159.5, 119.5)
+    cfg = DenseConfig()
+    volume = _Volume(_open3d(), cfg, cam, cfg.block_count)
+    wall = np.full((240, 320), 1.5, dtype=np.float32)
+    rgb = np.full((240, 320, 3), 128, dtype=np.uint8)
+    volume.integrate(wall, rgb, np.eye(4))
+    first = volume.size
+    # Sized to the data: the frame's blocks plus the growth margin, where a budget sized for
+    # the camera's whole depth range (24 views of a wall at 3 m) held 19776 blocks (1.6 GB).
+    assert volume.capacity == int(np.ceil(cfg.block_growth * first))
+    assert volume.capacity < 1000
+    assert volume.growths == 1
+
+    moved = np.eye(4)
+    moved[0, 3] = 3.0
+    volume.integrate(wall, rgb, moved)
+    assert volume.size > 1.8 * first
+    assert volume.capacity >= volume.size
+    assert volume.growths == 2
+    # Growing keeps what was fused before: the mesh spans both walls.
+    mesh, _, _ = volume.extract(0.5)
+    assert mesh.vertices[:, 0].min() < 0.0 and mesh.vertices[:, 0].max() > 3.0
+
+
+def test_volume_budget_follows_the_scene(
+    synth_result: tuple[SlamResult, Trajectory | None],
+) -> None:
+    counts = synth_result[0].counts
+    # Capacity stays within the growth margin of what the scene uses (plus one frame's blocks).
+    assert counts["voxel_blocks"] <= counts["voxel_block_budget"] <= 3 * counts["voxel_blocks"]

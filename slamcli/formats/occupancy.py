@@ -65,6 +65,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from slamcli.atomic import atomic_path
 from slamcli.errors import (
     ConfigError,
     ExportError,
@@ -73,7 +74,6 @@ from slamcli.errors import (
     MapError,
     UnknownFormatError,
 )
-from slamcli.rundir import atomic_path
 from slamcli.types import OccupancyGrid
 
 log = logging.getLogger(__name__)

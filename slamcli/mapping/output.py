@@ -7,10 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
+from slamcli.atomic import atomic_path, check_writable_folder, write_json_atomic
 from slamcli.errors import ExportError
 from slamcli.formats.occupancy import write_map_yaml
 from slamcli.mapping.build import MAP_FILES, BuiltMap, MapSettings, build_map
-from slamcli.rundir import atomic_path, write_json_atomic
 from slamcli.types import ProgressFn
 
 PREVIEW_MIN_PX = 480
@@ -92,6 +92,8 @@ def map_run(
             f"{run}: already holds {', '.join(present)}",
             hint="pass --force to replace them, or --out to write elsewhere",
         )
+    if run.is_dir():
+        check_writable_folder(run)
     built = build_map(run, settings=settings, input_path=input_path, progress=progress)
     written = write_map(run, built)
     add_run_outputs(run, [p.name for p in written])

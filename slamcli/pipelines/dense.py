@@ -35,6 +35,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.config import setting
 from slamcli.errors import ConfigError, PipelineError
 from slamcli.geometry import compose, inverse, rotation_angle
 from slamcli.types import PinholeCamera, RgbdFrame, SlamResult, Trajectory, TriangleMesh
@@ -48,120 +49,204 @@ _METHODS = ("hybrid", "point_to_plane", "intensity")
 
 @dataclass(frozen=True)
 class DenseConfig:
-    """Settings of :class:`DenseSlam`. Lengths in metres, angles in degrees.
+    """Settings of :class:`DenseSlam`. Lengths in metres, angles in degrees."""
 
-    Attributes:
-        voxel_size_m: TSDF voxel edge.
-        block_resolution: voxels per block edge (blocks are ``block_resolution**3`` voxels).
-        block_count: initial voxel-block budget; 0 sizes it from the depth range and the
-            camera's field of view (``block_budget_views`` frames' worth of surface).
-        block_budget_views: how many distinct views' worth of surface the automatic budget holds.
-        depth_min_m, depth_max_m: depth readings outside this range are ignored.
-        sdf_trunc_voxels: TSDF truncation distance in voxels.
-        min_valid_depth_fraction: a frame with a smaller share of valid depth pixels is tracked
-            if possible but never integrated.
-        track_downsample: the frame-to-model registration runs on images shrunk by this
-            integer factor (ray casting costs grow with the pixel count); never below 160
-            pixels wide, where the coarse pyramid levels would have too few pixels.
-        odometry_method: ``hybrid`` (photometric + geometric), ``point_to_plane`` or
-            ``intensity``, for the frame-to-model refinement.
-        odometry_iterations: iterations per pyramid level, coarse to fine.
-        depth_outlier_m: correspondences further apart than this are rejected by the odometry.
-        min_fitness: least share of pixels with a correspondence for a trusted registration.
-        max_jump_m, max_jump_deg: largest deviation from the constant-velocity prediction.
-        max_seed_disagreement_m, max_seed_disagreement_deg: largest difference between the
-            feature seed and the dense refinement before the refinement is distrusted.
-        orb_features: ORB keypoints per frame.
-        match_ratio: Lowe ratio for ORB descriptor matches.
-        pnp_reprojection_px: RANSAC inlier threshold of PnP, pixels.
-        pnp_iterations: RANSAC iterations of PnP.
-        pnp_min_inliers: least PnP inliers for a feature pose.
-        relocalise_keyframes: how many of the latest keyframes relocalisation tries.
-        keyframe_every: frames between keyframes at most.
-        keyframe_min_m, keyframe_min_deg: motion since the last keyframe that makes a new one.
-        loop_min_frames: frames between two keyframes before they may close a loop.
-        loop_max_distance_m, loop_max_angle_deg: pose proximity of loop candidates.
-        loop_min_match_ratio: least share of ORB descriptors with a ratio-test match.
-        loop_max_candidates: candidates verified per keyframe, best appearance first.
-        loop_min_inliers: least PnP inliers for a loop.
-        loop_min_fitness: least RGB-D odometry fitness for a loop.
-        loop_max_disagreement_m, loop_max_disagreement_deg: largest difference between the PnP
-            and the dense estimate of a loop's relative pose.
-        pose_graph_prune: edge-prune threshold of the line process (0..1).
-        pose_graph_max_correspondence_m: correspondence distance of the global optimisation.
-        pose_graph_loop_preference: weight of loop edges against odometry edges.
-        reintegrate_min_shift_m, reintegrate_min_shift_deg: the volume is rebuilt when the
-            optimisation moves any keyframe by more than this.
-        mesh_weight_threshold: least integration weight of voxels in the mesh and points.
-        undistort: remap frames whose camera has lens distortion onto the same pinhole
-            (colour bilinear, depth nearest-neighbour) before anything else; the volume,
-            ray casts and odometry all assume a pinhole camera.
-        seed: seeds OpenCV's RNG (PnP RANSAC).
-    """
-
-    voxel_size_m: float = 0.01
-    block_resolution: int = 16
-    block_count: int = 0
-    block_budget_views: int = 24
-    depth_min_m: float = 0.1
-    depth_max_m: float = 3.0
-    sdf_trunc_voxels: float = 8.0
-    min_valid_depth_fraction: float = 0.2
-    track_downsample: int = 2
-    odometry_method: str = "point_to_plane"
-    odometry_iterations: tuple[int, ...] = (6, 4, 2)
-    depth_outlier_m: float = 0.07
-    min_fitness: float = 0.1
-    max_jump_m: float = 0.15
-    max_jump_deg: float = 15.0
-    max_seed_disagreement_m: float = 0.05
-    max_seed_disagreement_deg: float = 4.0
-    orb_features: int = 1000
-    match_ratio: float = 0.8
-    pnp_reprojection_px: float = 3.0
-    pnp_iterations: int = 200
-    pnp_min_inliers: int = 25
-    relocalise_keyframes: int = 8
-    keyframe_every: int = 10
-    keyframe_min_m: float = 0.1
-    keyframe_min_deg: float = 10.0
-    loop_min_frames: int = 45
-    loop_max_distance_m: float = 1.0
-    loop_max_angle_deg: float = 45.0
-    loop_min_match_ratio: float = 0.08
-    loop_max_candidates: int = 2
-    loop_min_inliers: int = 30
-    loop_min_fitness: float = 0.3
-    loop_max_disagreement_m: float = 0.02
-    loop_max_disagreement_deg: float = 1.5
-    pose_graph_prune: float = 0.25
-    pose_graph_max_correspondence_m: float = 0.03
-    pose_graph_loop_preference: float = 0.1
-    reintegrate_min_shift_m: float = 0.002
-    reintegrate_min_shift_deg: float = 0.1
-    mesh_weight_threshold: float = 3.0
-    undistort: bool = True
-    seed: int = 0
+    voxel_size_m: float = setting(0.01, help="TSDF voxel edge", unit="m", gt=0.0, max=0.5)
+    block_resolution: int = setting(
+        16,
+        help="voxels per block edge; a block holds block_resolution**3 voxels",
+        choices=(8, 16, 32),
+    )
+    block_count: int = setting(
+        0,
+        help="initial voxel-block capacity; 0 sizes it from the first integrated frame. The "
+        "volume grows with the scene either way, so this only saves early regrowth",
+        unit="blocks",
+        min=0,
+    )
+    block_growth: float = setting(
+        1.5,
+        help="when a frame's blocks would not fit, the capacity grows to this multiple of the "
+        "blocks then needed; a block of 16**3 voxels holds 80 kB",
+        min=1.1,
+        max=4.0,
+    )
+    depth_min_m: float = setting(
+        0.1, help="depth readings nearer than this are ignored", unit="m", min=0.0
+    )
+    depth_max_m: float = setting(
+        3.0, help="depth readings further than this are ignored", unit="m", gt=0.0
+    )
+    sdf_trunc_voxels: float = setting(
+        8.0, help="TSDF truncation distance", unit="voxels", min=1.0, max=64.0
+    )
+    min_valid_depth_fraction: float = setting(
+        0.2,
+        help="a frame with a smaller share of valid depth pixels is tracked if possible but "
+        "never integrated",
+        min=0.0,
+        max=1.0,
+    )
+    track_downsample: int = setting(
+        2,
+        help="the frame-to-model registration runs on images shrunk by this factor (ray "
+        "casting costs grow with the pixel count); never below 160 pixels wide, where the "
+        "coarse pyramid levels would have too few pixels",
+        choices=(1, 2, 4),
+    )
+    odometry_method: str = setting(
+        "point_to_plane",
+        help="loss of the frame-to-model refinement: photometric + geometric, geometric only, "
+        "or photometric only",
+        choices=_METHODS,
+    )
+    odometry_iterations: tuple[int, ...] = setting(
+        (6, 4, 2), help="odometry iterations per pyramid level, coarse to fine", min=1, max=100
+    )
+    depth_outlier_m: float = setting(
+        0.07,
+        help="odometry correspondences further apart than this are rejected",
+        unit="m",
+        gt=0.0,
+    )
+    min_fitness: float = setting(
+        0.1,
+        help="least share of pixels with a correspondence for a trusted registration",
+        min=0.0,
+        max=1.0,
+    )
+    max_jump_m: float = setting(
+        0.15, help="largest deviation from the constant-velocity prediction", unit="m", gt=0.0
+    )
+    max_jump_deg: float = setting(
+        15.0,
+        help="largest turn away from the constant-velocity prediction",
+        unit="deg",
+        gt=0.0,
+        max=180.0,
+    )
+    max_seed_disagreement_m: float = setting(
+        0.05,
+        help="largest offset between the feature seed and the dense refinement before the "
+        "refinement is distrusted",
+        unit="m",
+        gt=0.0,
+    )
+    max_seed_disagreement_deg: float = setting(
+        4.0,
+        help="largest rotation between the feature seed and the dense refinement before the "
+        "refinement is distrusted",
+        unit="deg",
+        gt=0.0,
+        max=180.0,
+    )
+    orb_features: int = setting(1000, help="ORB keypoints per frame", min=1, max=100000)
+    match_ratio: float = setting(0.8, help="Lowe ratio for ORB descriptor matches", gt=0.0, max=1.0)
+    pnp_reprojection_px: float = setting(
+        3.0, help="RANSAC inlier threshold of PnP", unit="px", gt=0.0
+    )
+    pnp_iterations: int = setting(200, help="RANSAC iterations of PnP", min=1)
+    pnp_min_inliers: int = setting(
+        25, help="least PnP inliers for a feature pose; EPnP needs 4", min=4
+    )
+    relocalise_keyframes: int = setting(
+        8, help="how many of the latest keyframes relocalisation tries", min=1
+    )
+    keyframe_every: int = setting(10, help="frames between keyframes at most", min=1)
+    keyframe_min_m: float = setting(
+        0.1, help="motion since the last keyframe that makes a new one", unit="m", gt=0.0
+    )
+    keyframe_min_deg: float = setting(
+        10.0, help="turn since the last keyframe that makes a new one", unit="deg", gt=0.0
+    )
+    loop_min_frames: int = setting(
+        45, help="frames between two keyframes before they may close a loop", min=1
+    )
+    loop_max_distance_m: float = setting(
+        1.0, help="largest distance between the poses of loop candidates", unit="m", min=0.0
+    )
+    loop_max_angle_deg: float = setting(
+        45.0,
+        help="largest angle between the poses of loop candidates",
+        unit="deg",
+        min=0.0,
+        max=180.0,
+    )
+    loop_min_match_ratio: float = setting(
+        0.08,
+        help="least share of ORB descriptors with a ratio-test match for a loop candidate",
+        min=0.0,
+        max=1.0,
+    )
+    loop_max_candidates: int = setting(
+        2,
+        help="loop candidates verified per keyframe, best appearance first; 0 closes no loops",
+        min=0,
+    )
+    loop_min_inliers: int = setting(30, help="least PnP inliers for a loop", min=4)
+    loop_min_fitness: float = setting(
+        0.3, help="least RGB-D odometry fitness for a loop", min=0.0, max=1.0
+    )
+    loop_max_disagreement_m: float = setting(
+        0.02,
+        help="largest offset between the PnP and the dense estimate of a loop's relative pose",
+        unit="m",
+        min=0.0,
+    )
+    loop_max_disagreement_deg: float = setting(
+        1.5,
+        help="largest rotation between the PnP and the dense estimate of a loop's relative pose",
+        unit="deg",
+        min=0.0,
+        max=180.0,
+    )
+    pose_graph_prune: float = setting(
+        0.25, help="edge-prune threshold of the line process", min=0.0, max=1.0
+    )
+    pose_graph_max_correspondence_m: float = setting(
+        0.03, help="correspondence distance of the global optimisation", unit="m", gt=0.0
+    )
+    pose_graph_loop_preference: float = setting(
+        0.1, help="weight of loop edges against odometry edges", min=0.0
+    )
+    reintegrate_min_shift_m: float = setting(
+        0.002,
+        help="the volume is rebuilt when the optimisation moves a keyframe further than this",
+        unit="m",
+        min=0.0,
+    )
+    reintegrate_min_shift_deg: float = setting(
+        0.1,
+        help="the volume is rebuilt when the optimisation turns a keyframe further than this",
+        unit="deg",
+        min=0.0,
+    )
+    mesh_weight_threshold: float = setting(
+        3.0, help="least integration weight of voxels in the mesh and points", min=0.0
+    )
+    undistort: bool = setting(
+        True,
+        help="remap frames whose camera has lens distortion onto the same pinhole (colour "
+        "bilinear, depth nearest-neighbour) before anything else; the volume, ray casts and "
+        "odometry all assume a pinhole camera",
+        choices=(True, False),
+    )
+    seed: int = setting(0, help="seeds OpenCV's RNG (PnP RANSAC)", min=0, max=2**31 - 1)
 
     def __post_init__(self) -> None:
-        checks = [
-            ("voxel_size_m", self.voxel_size_m > 0, "> 0"),
-            ("block_resolution", self.block_resolution in (8, 16, 32), "one of 8, 16, 32"),
-            ("block_count", self.block_count >= 0, ">= 0"),
-            ("depth_min_m", 0 <= self.depth_min_m < self.depth_max_m, "in [0, depth_max_m)"),
-            ("sdf_trunc_voxels", self.sdf_trunc_voxels >= 1, ">= 1"),
-            ("track_downsample", self.track_downsample in (1, 2, 4), "one of 1, 2, 4"),
-            ("odometry_method", self.odometry_method in _METHODS, f"one of {_METHODS}"),
-            ("odometry_iterations", len(self.odometry_iterations) >= 1, "at least one level"),
-            ("keyframe_every", self.keyframe_every >= 1, ">= 1"),
-            ("min_fitness", 0 <= self.min_fitness <= 1, "in [0, 1]"),
-        ]
-        for key, ok, allowed in checks:
-            if not ok:
-                raise ConfigError(
-                    f"dense.{key}: expected {allowed}, got {getattr(self, key)!r}",
-                    hint=f"set dense.{key} to a value {allowed}",
-                )
+        # Single values are range-checked where they are read (load_config); what remains is
+        # what one field's range cannot say.
+        if self.depth_min_m >= self.depth_max_m:
+            raise ConfigError(
+                f"dense.depth_min_m: expected less than dense.depth_max_m "
+                f"({self.depth_max_m}), got {self.depth_min_m!r}",
+                hint="set dense.depth_min_m below dense.depth_max_m",
+            )
+        if not self.odometry_iterations:
+            raise ConfigError(
+                "dense.odometry_iterations: expected at least one pyramid level, got []",
+                hint="for example --set dense.odometry_iterations=[6, 4, 2]",
+            )
 
 
 @dataclass
@@ -323,7 +408,8 @@ class DenseSlam:
         counts["loop_closures_accepted"] = sum(r["accepted"] for r in self._loop_records)
         counts["loop_closures_rejected"] = sum(not r["accepted"] for r in self._loop_records)
         counts["voxel_blocks"] = self._volume.size
-        counts["voxel_block_budget"] = self._volume.budget
+        counts["voxel_block_budget"] = self._volume.capacity
+        counts["voxel_block_growths"] = self._volume.growths
         self._ms["total"] += (time.perf_counter() - finish_start) * 1e3
         stages = {k: v / self._frames for k, v in sorted(self._ms.items())}
         return SlamResult(
@@ -451,7 +537,7 @@ class DenseSlam:
         """Fuse a trusted frame into the volume and keep it for a later rebuild."""
         if self._volume is None:
             assert self._camera is not None
-            self._volume = _Volume(self._o3d, self.config, self._camera)
+            self._volume = _Volume(self._o3d, self.config, self._camera, self.config.block_count)
         self._volume.integrate(cur.depth, cur.rgb, pose)
         depth_u16 = np.rint(cur.depth * _DEPTH_STEPS_PER_M).astype(np.uint16)
         self._integrated.append((len(self._poses) - 1, depth_u16, cur.rgb))
@@ -569,7 +655,12 @@ class DenseSlam:
         for kf, pose in zip(self._keyframes, corrected, strict=True):
             kf.world_from_cam = pose
         assert self._camera is not None
-        volume = _Volume(self._o3d, self.config, self._camera)
+        # The rebuilt volume covers about the same blocks: it starts with that room, and the
+        # old one is released first so the two never hold memory at once.
+        assert self._volume is not None
+        capacity = math.ceil(self.config.block_growth * self._volume.size)
+        self._volume = None
+        volume = _Volume(self._o3d, self.config, self._camera, capacity)
         for pose_index, depth_u16, rgb in self._integrated:
             depth = depth_u16.astype(np.float32) / np.float32(_DEPTH_STEPS_PER_M)
             volume.integrate(depth, rgb, self._poses[pose_index])
@@ -826,9 +917,14 @@ class _Timer:
 
 
 class _Volume:
-    """An Open3D ``VoxelBlockGrid`` TSDF with colour and its block budget."""
+    """An Open3D ``VoxelBlockGrid`` TSDF with colour that grows with the scene.
 
-    def __init__(self, o3d: Any, config: DenseConfig, camera: PinholeCamera) -> None:
+    Open3D allocates (and zeroes) every block of the capacity up front, 80 kB per 16**3 block,
+    so the capacity follows the data: it starts at ``capacity`` blocks (or what the first frame
+    needs) and is raised before a frame whose blocks might not fit.
+    """
+
+    def __init__(self, o3d: Any, config: DenseConfig, camera: PinholeCamera, capacity: int) -> None:
         self._o3d = o3d
         self._cfg = config
         self._camera = camera
@@ -839,23 +935,42 @@ class _Volume:
         k_integrate = camera.K.copy()
         k_integrate[:2, 2] += 0.5
         self._K = o3d.core.Tensor(k_integrate)
-        self.budget = config.block_count or _block_budget(config, camera)
         self._grid = o3d.t.geometry.VoxelBlockGrid(
             ("tsdf", "weight", "color"),
             (o3d.core.float32, o3d.core.float32, o3d.core.float32),
             ((1), (1), (3)),
             config.voxel_size_m,
             config.block_resolution,
-            self.budget,
+            max(1, capacity),
         )
+        self.growths = 0
         self._integrated = 0
-        self._warned = False
         self._last_blocks: Any = None
 
     @property
     def size(self) -> int:
         """Number of allocated voxel blocks."""
         return int(self._grid.hashmap().size())
+
+    @property
+    def capacity(self) -> int:
+        """Number of voxel blocks the volume holds before it must grow."""
+        return int(self._grid.hashmap().capacity())
+
+    def reserve(self, new_blocks: int) -> None:
+        """Make room for ``new_blocks`` more blocks (an upper bound), growing by
+        ``block_growth``.
+
+        Open3D would grow the hash map by itself, but to twice its capacity whenever the size
+        plus the frame's blocks (new or not) exceed it; growing first keeps the steady state at
+        ``block_growth`` times the need.
+        """
+        needed = self.size + new_blocks
+        if needed > self.capacity:
+            capacity = math.ceil(self._cfg.block_growth * needed)
+            log.debug("TSDF volume grows from %d to %d blocks", self.capacity, capacity)
+            self._grid.hashmap().reserve(capacity)
+            self.growths += 1
 
     def integrate(self, depth: NDArray[np.float32], rgb: NDArray[np.uint8], pose: F64) -> None:
         """Fuse depth (H, W) metres and colour (H, W, 3) seen from world_from_cam ``pose``."""
@@ -866,14 +981,7 @@ class _Volume:
         blocks = self._grid.compute_unique_block_coordinates(
             depth_img, self._K, extrinsic, 1.0, cfg.depth_max_m, cfg.sdf_trunc_voxels
         )
-        if not self._warned and self.size + len(blocks) > 0.9 * self.budget:
-            self._warned = True
-            log.warning(
-                "the TSDF volume nears its budget of %d voxel blocks (%d used): raise "
-                "dense.block_count or dense.voxel_size_m",
-                self.budget,
-                self.size,
-            )
+        self.reserve(len(blocks))
         self._grid.integrate(
             blocks,
             depth_img,
@@ -945,20 +1053,6 @@ def _tracking_camera(camera: PinholeCamera, downsample: int) -> PinholeCamera:
 
 
 _RANGE_TILE = 8
-
-
-def _block_budget(config: DenseConfig, camera: PinholeCamera) -> int:
-    """Voxel blocks for ``block_budget_views`` views of a wall at the far depth limit.
-
-    One view of a surface at depth ``z`` covers ``(W z / fx) (H z / fy)`` square metres, a
-    block band ``block_edge + 2 * truncation`` thick around it.
-    """
-    block = config.voxel_size_m * config.block_resolution
-    z = config.depth_max_m
-    area = (camera.width * z / camera.fx) * (camera.height * z / camera.fy)
-    thickness = 1.0 + 2.0 * config.sdf_trunc_voxels * config.voxel_size_m / block
-    per_view = area / block**2 * thickness
-    return max(1000, math.ceil(per_view * config.block_budget_views))
 
 
 def _to_uint8(colours: NDArray[Any]) -> NDArray[np.uint8]:

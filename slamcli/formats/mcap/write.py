@@ -68,6 +68,7 @@ from typing import IO, TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.atomic import atomic_path
 from slamcli.errors import ConfigError, ExportError, FormatError, InputError
 from slamcli.formats.mcap.observations import (
     MESSAGE_ENCODING as LANDMARK_MESSAGE_ENCODING,
@@ -81,7 +82,6 @@ from slamcli.formats.mcap.observations import (
 from slamcli.formats.mcap.observations import landmark_message, landmark_schema
 from slamcli.formats.mesh import mesh_to_glb, read_mesh, read_points_ply
 from slamcli.formats.text import parse_floats, parse_stamp_ns
-from slamcli.rundir import atomic_path
 from slamcli.types import (
     ImuFrame,
     OccupancyGrid,
