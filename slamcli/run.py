@@ -167,11 +167,11 @@ def _run_into(
         command=command or f"run {pipeline}",
         inputs=[hash_input(input_path)],
         config={pipeline: cfg, "source": dict(source_options or {})},
-        seeds={},
+        seeds=pipe.seeds(),
         timings=timings,
         counts=counts,
         metrics=metrics,
-        extra={"source": info.to_dict(), "data_loss": stats.data_loss},
+        extra={"pipeline": pipeline, "source": info.to_dict(), "data_loss": stats.data_loss},
     )
     outputs.append(run.file("run.json"))
     return RunOutcome(

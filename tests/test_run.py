@@ -168,3 +168,17 @@ def test_run_dense_settings_are_checked_before_reading(tmp_path: Path) -> None:
     assert res.exit_code == 1
     assert "dense.voxel_size_m" in res.output
     assert not out.exists()
+
+
+def test_run_json_names_the_pipeline_and_its_seeds(tmp_path: Path) -> None:
+    records = {}
+    for seed in (0, 7):
+        out = tmp_path / f"seed{seed}"
+        args = ["run", "dense", str(default_sample()), "--out", str(out), "--max-frames", "3"]
+        res = runner.invoke(app, [*args, "--set", f"seed={seed}"])
+        assert res.exit_code == 0, res.output
+        records[seed] = json.loads((out / "run.json").read_text())
+    for seed, record in records.items():
+        assert record["pipeline"] == "dense"
+        assert record["seeds"] == {"opencv": seed}
+        assert record["config"]["dense"]["seed"] == seed

@@ -333,6 +333,11 @@ class DenseSlam:
 
     # -- the pipeline -------------------------------------------------------------------------
 
+    def seeds(self) -> dict[str, int]:
+        """Seeds of the random number generators a run uses, by generator: OpenCV's (PnP
+        RANSAC) gets ``config.seed`` before every PnP."""
+        return {"opencv": self.config.seed}
+
     def process(self, frame: RgbdFrame) -> None:
         """Track, integrate and maybe keyframe one RGB-D frame."""
         # Stage timers nest (the ray cast is part of tracking), so the total is timed on its own.

@@ -208,6 +208,11 @@ class EkfSlam:
 
     # -- set-up -----------------------------------------------------------------------------
 
+    def seeds(self) -> dict[str, int]:
+        """Seeds of the random number generators a run uses, by generator: none, the filter
+        draws no random numbers."""
+        return {}
+
     def set_start(self, pose: F64 | None) -> None:
         """The starting pose (x, y, yaw), e.g. ground truth at the first frame; None = origin."""
         if self.config.start == "groundtruth" and pose is not None:

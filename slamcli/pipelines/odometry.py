@@ -77,6 +77,11 @@ class RgbdOdometry:
         self._poses.append(world_from_cam)
         self._previous = current
 
+    def seeds(self) -> dict[str, int]:
+        """Seeds of the random number generators a run uses, by generator: none, the odometry
+        draws no random numbers."""
+        return {}
+
     def finish(self) -> SlamResult:
         traj = (
             Trajectory(np.array(self._stamps, dtype=np.int64), np.stack(self._poses))
