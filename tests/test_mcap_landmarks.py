@@ -19,6 +19,7 @@ from typer.testing import CliRunner
 from slamcli.cli.app import app
 from slamcli.errors import InputError, TopicNotFoundError
 from slamcli.formats import open_source
+from slamcli.formats.landmarks import LandmarkLog, read_landmark_log
 from slamcli.formats.mcap import write as mw
 from slamcli.formats.mcap.observations import SCHEMA_NAME, landmark_schema
 from slamcli.formats.mcap.source import McapSource
@@ -235,10 +236,10 @@ def test_two_landmark_topics_need_a_choice(tmp_path: Path) -> None:
 
 def test_late_observations_come_back_in_stamp_order(tmp_path: Path) -> None:
     """A detector logs its observations 250 ms after they were taken; odometry is prompt."""
-    run = mw.read_landmark_folder(SAMPLE)
+    run = read_landmark_log(SAMPLE)
     keep = run.odometry_stamps_ns < run.odometry_stamps_ns[0] + 3_000_000_000
     meas = run.measurement_stamps_ns < run.odometry_stamps_ns[0] + 3_000_000_000
-    short = mw.LandmarkLog(
+    short = LandmarkLog(
         run.odometry_stamps_ns[keep],
         run.odometry[keep],
         run.measurement_stamps_ns[meas],
@@ -327,11 +328,11 @@ def test_the_documented_python_example_runs(
 def test_start_pose_when_ground_truth_starts_late(
     tmp_path: Path, late_s: float, expect: str | None
 ) -> None:
-    run = mw.read_landmark_folder(SAMPLE)
+    run = read_landmark_log(SAMPLE)
     assert run.groundtruth is not None
     stamps = run.groundtruth.stamps_ns
     gt = run.groundtruth.subset(stamps >= stamps[0] + round(late_s * 1e9))
-    late = mw.LandmarkLog(
+    late = LandmarkLog(
         run.odometry_stamps_ns,
         run.odometry,
         run.measurement_stamps_ns,

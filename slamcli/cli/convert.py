@@ -26,7 +26,7 @@ from slamcli.cli.source_options import (
     Strict,
     Undistort,
 )
-from slamcli.errors import ConfigError, DataLossError
+from slamcli.errors import DataLossError
 
 if TYPE_CHECKING:
     from slamcli.formats.mcap.write import McapWriteSummary
@@ -70,7 +70,7 @@ Examples:
 
 [bold]slamcli convert sample_data/landmarks landmarks.mcap[/]
 
-[bold]slamcli convert runs/demo runs/demo/result.mcap[/]
+[bold]slamcli convert runs/demo/dense runs/demo/dense/result.mcap[/]
 
 [bold]slamcli convert robot.mcap odom.tum --gt-topic /odom[/]
 """
@@ -157,107 +157,35 @@ def convert(
     gt_topic: GtTopic = None,
     gt_frame: GtFrame = None,
 ) -> None:
-    from slamcli.formats.mcap.write import is_landmark_dir, is_run_dir
+    from slamcli.convert import convert as convert_input
 
-    if out.suffix.lower() in TRAJECTORY_SUFFIXES:
-        _export_trajectory(input, out, gt_topic, gt_frame, strict, force)
-        return
-    if gt_topic or gt_frame:
-        raise ConfigError(
-            "--gt-topic/--gt-frame export a trajectory: give OUT a .tum, .txt or .kitti name"
-        )
-
-    rgbd_only = {
-        "--compress-images": compress_images is not Compression.none,
-        "--depth-encoding": depth_encoding is not DepthEncoding.millimetres,
-        "--max-frames": max_frames is not None,
-    }
-    if is_run_dir(input):
-        from slamcli.formats.mcap.write import read_run_result, write_result_log
-
-        given = [flag for flag, used in rgbd_only.items() if used]
-        if flavor is Flavor.ros2:
-            given.insert(0, "--flavor ros2")
-        if given:
-            raise ConfigError(
-                f"{input}: {', '.join(given)} {'is' if len(given) == 1 else 'are'} for RGB-D "
-                "inputs, not run folders",
-                hint="a run folder is always written with Foxglove schemas; drop those options",
-            )
-        summary = write_result_log(out, read_run_result(input), force=force)
-        _show(summary)
-        return
-
-    if is_landmark_dir(input):
-        from slamcli.formats.mcap.write import write_landmark_log
-
-        given = [flag for flag, used in rgbd_only.items() if used]
-        if given:
-            raise ConfigError(
-                f"{input}: {', '.join(given)} {'is' if len(given) == 1 else 'are'} for RGB-D "
-                "inputs, not landmark folders",
-                hint="a landmark folder has no images; drop those options",
-            )
-        summary = write_landmark_log(out, input, flavor=(flavor or Flavor.ros2).value, force=force)
-        _show(summary)
-        return
-
-    from slamcli.formats import open_source
-    from slamcli.formats.mcap.write import write_source_mcap
-
-    opts = SourceOptions.pick(locals())
-    with (
-        open_source(input, **opts.open_kwargs()) as source,
-        render.progress("converting frames") as progress,
-    ):
-        summary = write_source_mcap(
-            source,
+    options = SourceOptions.pick(locals()).open_kwargs()
+    with render.progress("converting frames") as progress:
+        result = convert_input(
+            input,
             out,
-            flavor=(flavor or Flavor.ros2).value,
+            flavor=flavor.value if flavor is not None else None,
             compress_images=compress_images.value,
             depth_encoding=depth_encoding.value,
             jpeg_quality=jpeg_quality,
             max_frames=max_frames,
             force=force,
+            source_options=options,
             progress=progress,
         )
-    _show(summary)
-    if summary.skipped:
+    if result.summary is None:
+        render.key_values(None, {"poses": result.poses, "from": result.poses_from})
+        render.written([result.out])
+        if result.data_loss:
+            raise DataLossError(f"{input}: the log is damaged; {out} holds what could be read")
+        return
+    _show(result.summary)
+    if result.skipped:
         raise DataLossError(
-            f"{input}: {summary.skipped} frame(s) skipped because an image was missing or "
-            f"unreadable; {out} holds the other {summary.frames}",
+            f"{input}: {result.skipped} frame(s) skipped because an image was missing or "
+            f"unreadable; {out} holds the other {result.summary.frames}",
             hint=f"'slamcli info {input} --deep' names every unreadable image",
         )
-
-
-TRAJECTORY_SUFFIXES = {".tum": "tum", ".txt": "tum", ".kitti": "kitti"}
-
-
-def _export_trajectory(
-    input: Path, out: Path, gt_topic: str | None, gt_frame: str | None, strict: bool, force: bool
-) -> None:
-    from slamcli.formats.mcap.source import McapSource
-    from slamcli.formats.trajectory import write_trajectory
-
-    if not McapSource.sniff(input):
-        raise ConfigError(f"{input}: trajectories are exported from MCAP logs only")
-    if out.exists() and not force:
-        raise ConfigError(f"{out}: exists", hint="pass --force to overwrite it")
-    if not (gt_topic or gt_frame):
-        raise ConfigError(
-            f"{out}: exporting a trajectory needs --gt-topic TOPIC or --gt-frame FRAME",
-            hint=f"'slamcli info {input}' lists the topics",
-        )
-    with McapSource(input, gt_topic=gt_topic, gt_frame=gt_frame, strict=strict) as source:
-        trajectory = source.groundtruth()
-        lost = list(source.stats.data_loss)
-    if trajectory is None:
-        raise ConfigError(f"{input}: {gt_topic or gt_frame} holds no poses")
-    write_trajectory(out, trajectory, TRAJECTORY_SUFFIXES[out.suffix.lower()])
-    render.key_values(None, {"poses": len(trajectory), "from": gt_topic or f"tf {gt_frame}"})
-    render.written([out])
-    if lost:
-        raise DataLossError(f"{input}: the log is damaged; {out} holds what could be read")
 
 
 def _show(summary: McapWriteSummary) -> None:

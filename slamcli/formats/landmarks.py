@@ -1020,8 +1020,54 @@ class LandmarkWorldSource(LandmarkSource):
         return self._info(streams, gt, details, problems, progress)
 
 
+@dataclass
+class LandmarkLog:
+    """A landmark run in memory, as :func:`~slamcli.formats.mcap.write.write_landmark_log`
+    writes it: velocity odometry, range-bearing observations and ground truth.
+
+    Attributes:
+        odometry_stamps_ns: (K,) int64 odometry stamps.
+        odometry: (K, 2) float64 v (m/s) and omega (rad/s) applied from each stamp to the next.
+        measurement_stamps_ns: (M,) int64 stamp of each observation.
+        measurement_ids: (M,) int64 landmark ids, -1 = unknown.
+        measurement_ranges: (M,) float64 metres.
+        measurement_bearings: (M,) float64 radians, counter-clockwise from the heading.
+        groundtruth: true poses (world_from_body), or None.
+    """
+
+    odometry_stamps_ns: I64
+    odometry: F64
+    measurement_stamps_ns: I64
+    measurement_ids: I64
+    measurement_ranges: F64
+    measurement_bearings: F64
+    groundtruth: Trajectory | None = None
+
+
+def read_landmark_log(folder: str | Path) -> LandmarkLog:
+    """A ``slamcli synth landmarks`` folder (read by :class:`LandmarkWorldSource`) in memory.
+
+    Raises:
+        InputError: not such a folder. FormatError: a malformed line (names file:line).
+    """
+    with LandmarkWorldSource(folder) as source:
+        odo, obs = source.odometry, source.observations
+        # A landmarks folder always holds velocities (t, v, omega); the source checked that.
+        assert odo.v is not None and odo.omega is not None
+        return LandmarkLog(
+            odometry_stamps_ns=odo.stamps_ns,
+            odometry=np.stack([odo.v, odo.omega], axis=1),
+            measurement_stamps_ns=obs.stamps_ns,
+            measurement_ids=obs.ids,
+            measurement_ranges=obs.ranges_m,
+            measurement_bearings=obs.bearings_rad,
+            groundtruth=source.groundtruth(),
+        )
+
+
 __all__ = [
     "FRAME_KINDS",
+    "LandmarkLog",
     "LandmarkSource",
     "LandmarkWorldSource",
     "MrclamSource",
@@ -1029,5 +1075,6 @@ __all__ = [
     "Odometry",
     "Table",
     "VictoriaParkSource",
+    "read_landmark_log",
     "read_table",
 ]

@@ -52,7 +52,6 @@ from __future__ import annotations
 import abc
 import base64
 import contextlib
-import csv
 import heapq
 import json
 import logging
@@ -69,7 +68,8 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.atomic import atomic_path
-from slamcli.errors import ConfigError, ExportError, FormatError, InputError
+from slamcli.errors import ConfigError, ExportError
+from slamcli.formats.landmarks import LandmarkLog, read_landmark_log
 from slamcli.formats.mcap.observations import (
     MESSAGE_ENCODING as LANDMARK_MESSAGE_ENCODING,
 )
@@ -80,8 +80,8 @@ from slamcli.formats.mcap.observations import (
     SCHEMA_NAME as LANDMARK_SCHEMA_NAME,
 )
 from slamcli.formats.mcap.observations import landmark_message, landmark_schema
-from slamcli.formats.mesh import mesh_to_glb, read_mesh, read_points_ply
-from slamcli.formats.text import parse_floats, parse_stamp_ns
+from slamcli.formats.mesh import mesh_to_glb
+from slamcli.formats.run_folder import RESULT_KINDS, RUN_FILES, read_run
 from slamcli.types import (
     ImuFrame,
     OccupancyGrid,
@@ -122,16 +122,11 @@ TOPIC_LANDMARKS = "/landmarks"
 TOPIC_GROUND_TRUTH = "/ground_truth"
 ODOM_FRAME = "odom"
 BODY_FRAME = "base_link"
-LANDMARK_FILES = ("odometry.csv", "measurements.csv")
-"""The files that make a folder a landmark run (``groundtruth.tum`` is read when present)."""
 
 TOPIC_RESULT_POSE = "/slamcli/pose"
 TOPIC_RESULT_MAP = "/slamcli/map"
 TOPIC_RESULT_POINTS = "/slamcli/points"
 TOPIC_RESULT_MESH = "/slamcli/mesh"
-
-RESULT_FILES = ("trajectory.tum", "map.yaml", "points.ply", "mesh.ply")
-"""Run-folder files :func:`write_result_mcap` reads when present."""
 
 COMPRESSED_DEPTH_FORMAT = "16UC1; compressedDepth png"
 _COMPRESSED_DEPTH_HEADER = struct.pack("<iff", 0, 0.0, 0.0)
@@ -170,12 +165,6 @@ def check_choice(name: str, value: str, allowed: tuple[str, ...]) -> str:
     if value not in allowed:
         raise ConfigError(f"{name} must be one of {', '.join(allowed)}, got {value!r}")
     return value
-
-
-def is_run_dir(path: str | Path) -> bool:
-    """A run folder: a folder holding the ``run.json`` every run writes."""
-    p = Path(path)
-    return p.is_dir() and (p / "run.json").is_file()
 
 
 # --------------------------------------------------------------------------------------------
@@ -752,107 +741,6 @@ def write_source_mcap(
 # Landmark runs
 
 
-@dataclass
-class LandmarkLog:
-    """A landmark run in memory: odometry, range-bearing observations and ground truth.
-
-    Attributes:
-        odometry_stamps_ns: (K,) int64 odometry stamps.
-        odometry: (K, 2) float64 v (m/s) and omega (rad/s) applied from each stamp to the next.
-        measurement_stamps_ns: (M,) int64 stamp of each observation.
-        measurement_ids: (M,) int64 landmark ids, -1 = unknown.
-        measurement_ranges: (M,) float64 metres.
-        measurement_bearings: (M,) float64 radians, counter-clockwise from the heading.
-        groundtruth: true poses (world_from_body), or None.
-    """
-
-    odometry_stamps_ns: NDArray[np.int64]
-    odometry: NDArray[np.float64]
-    measurement_stamps_ns: NDArray[np.int64]
-    measurement_ids: NDArray[np.int64]
-    measurement_ranges: NDArray[np.float64]
-    measurement_bearings: NDArray[np.float64]
-    groundtruth: Trajectory | None = None
-
-
-def is_landmark_dir(path: str | Path) -> bool:
-    """A landmark run folder: it holds ``odometry.csv`` and ``measurements.csv``."""
-    p = Path(path)
-    return p.is_dir() and all((p / name).is_file() for name in LANDMARK_FILES)
-
-
-def _csv_rows(path: Path, columns: tuple[str, ...]) -> Iterator[tuple[int, list[str]]]:
-    """(line number, the named columns' fields) of each data row of a CSV file with a header."""
-    try:
-        with path.open("r", encoding="utf-8-sig", newline="") as fh:
-            reader = csv.reader(fh)
-            header = next(reader, None)
-            names = [h.strip() for h in header or []]
-            missing = [c for c in columns if c not in names]
-            if missing:
-                raise FormatError(
-                    path,
-                    f"the header {','.join(names) or '(none)'} lacks {', '.join(missing)}",
-                    1,
-                    hint=f"expected a header line {','.join(columns)}",
-                )
-            index = [names.index(c) for c in columns]
-            for row in reader:
-                if not row or not "".join(row).strip():
-                    continue
-                if len(row) < len(names):
-                    raise FormatError(
-                        path, f"{len(row)} fields, the header has {len(names)}", reader.line_num
-                    )
-                yield reader.line_num, [row[i].strip() for i in index]
-    except FileNotFoundError:
-        raise InputError(f"{path}: no such file") from None
-    except UnicodeDecodeError as exc:
-        raise FormatError(path, f"not a text file ({exc.reason} at byte {exc.start})") from None
-
-
-def read_landmark_folder(folder: str | Path) -> LandmarkLog:
-    """Read a landmark run folder (``slamcli synth landmarks``) into a :class:`LandmarkLog`.
-
-    ``odometry.csv`` (t,v,omega), ``measurements.csv`` (t,id,range,bearing) and, when present,
-    ``groundtruth.tum``. Stamps are decimal seconds, read exactly to the nanosecond.
-
-    Raises:
-        InputError: a file is missing; FormatError (naming file and line) for a bad row.
-    """
-    from slamcli.formats.trajectory import read_trajectory
-
-    root = Path(folder)
-    odo_path, meas_path = root / "odometry.csv", root / "measurements.csv"
-    odo_t: list[int] = []
-    odo: list[list[float]] = []
-    for line, (t, v, w) in _csv_rows(odo_path, ("t", "v", "omega")):
-        odo_t.append(parse_stamp_ns(t, odo_path, line))
-        odo.append(parse_floats([v, w], odo_path, line, "odometry"))
-    meas_t: list[int] = []
-    ids: list[int] = []
-    meas: list[list[float]] = []
-    for line, (t, i, r, b) in _csv_rows(meas_path, ("t", "id", "range", "bearing")):
-        meas_t.append(parse_stamp_ns(t, meas_path, line))
-        try:
-            ids.append(int(i))
-        except ValueError:
-            raise FormatError(meas_path, f"id {i!r} is not an integer", line) from None
-        meas.append(parse_floats([r, b], meas_path, line, "measurement"))
-    gt_path = root / "groundtruth.tum"
-    groundtruth = read_trajectory(gt_path, "tum") if gt_path.is_file() else None
-    m = np.asarray(meas, dtype=np.float64).reshape(-1, 2)
-    return LandmarkLog(
-        odometry_stamps_ns=np.asarray(odo_t, dtype=np.int64),
-        odometry=np.asarray(odo, dtype=np.float64).reshape(-1, 2),
-        measurement_stamps_ns=np.asarray(meas_t, dtype=np.int64),
-        measurement_ids=np.asarray(ids, dtype=np.int64),
-        measurement_ranges=m[:, 0].copy(),
-        measurement_bearings=m[:, 1].copy(),
-        groundtruth=groundtruth,
-    )
-
-
 def dead_reckon(stamps_ns: NDArray[np.int64], odometry: NDArray[np.float64]) -> NDArray[np.float64]:
     """(K, 3) x, y, yaw at each odometry stamp from x = y = yaw = 0 at the first.
 
@@ -894,7 +782,8 @@ def write_landmark_log(
     Args:
         out: the ``.mcap`` file; written to a temporary name and renamed into place when
             complete, so a failure leaves no partial file and an existing one untouched.
-        data: a landmark run folder (see :func:`read_landmark_folder`) or a :class:`LandmarkLog`.
+        data: a landmark run folder (see :func:`~slamcli.formats.landmarks.read_landmark_log`)
+            or a :class:`~slamcli.formats.landmarks.LandmarkLog`.
         flavor: ``"ros2"`` (profile ros2, PoseStamped ground truth) or ``"foxglove"``
             (``foxglove.PoseInFrame`` ground truth and ``/tf``). Odometry is CDR and
             observations JSON in both.
@@ -907,7 +796,7 @@ def write_landmark_log(
     check_choice("flavor", flavor, FLAVORS)
     out = Path(out)
     _check_out(out, force)
-    run = data if isinstance(data, LandmarkLog) else read_landmark_folder(data)
+    run = data if isinstance(data, LandmarkLog) else read_landmark_log(data)
     odo_order = np.argsort(run.odometry_stamps_ns, kind="stable")
     odo_t = run.odometry_stamps_ns[odo_order]
     odo = run.odometry[odo_order]
@@ -1098,35 +987,6 @@ def mesh_message(mesh: TriangleMesh, stamp_ns: int) -> dict[str, Any]:
     return {"deletions": [], "entities": [entity]}
 
 
-def read_run_result(run_dir: str | Path) -> SlamResult:
-    """The parts of a run folder a result log shows, read from its files.
-
-    Reads ``trajectory.tum``, ``map.yaml`` (with the image it names), ``points.ply`` and
-    ``mesh.ply`` where present.
-
-    Raises:
-        InputError: not a run folder (no ``run.json``), or a file that cannot be read.
-    """
-    from slamcli.formats.trajectory import read_trajectory
-
-    run = Path(run_dir)
-    if not is_run_dir(run):
-        raise InputError(
-            f"{run}: not a run folder (no run.json)",
-            hint="give the --out folder of a slamcli run",
-        )
-    result = SlamResult()
-    if (run / "trajectory.tum").is_file():
-        result.trajectory = read_trajectory(run / "trajectory.tum", "tum")
-    if (run / "map.yaml").is_file():
-        result.grid = read_map_yaml(run / "map.yaml")
-    if (run / "points.ply").is_file():
-        result.points, result.point_colors = read_points_ply(run / "points.ply")
-    if (run / "mesh.ply").is_file():
-        result.mesh = read_mesh(run / "mesh.ply")
-    return result
-
-
 def write_result_mcap(
     run_dir: str | Path, out: str | Path | None = None, *, force: bool = False
 ) -> Path:
@@ -1134,69 +994,13 @@ def write_result_mcap(
 
     Raises:
         InputError: not a run folder, or an unreadable result file.
-        ExportError: the folder holds none of :data:`RESULT_FILES`, ``out`` exists without
+        ExportError: the folder holds none of the files of
+            :data:`~slamcli.formats.run_folder.RESULT_KINDS`, ``out`` exists without
             ``force``, or the write failed.
     """
-    run = Path(run_dir)
-    result = read_run_result(run)
-    if not any((run / name).is_file() for name in RESULT_FILES):
-        raise ExportError(
-            f"{run}: nothing to write; the run folder has none of {', '.join(RESULT_FILES)}"
-        )
-    dest = Path(out) if out is not None else run / "result.mcap"
-    return write_result_log(dest, result, force=force).path
-
-
-def read_map_yaml(path: str | Path) -> OccupancyGrid:
-    """A ROS ``map_server`` map (YAML plus the image it names) as an :class:`OccupancyGrid`.
-
-    Follows map_server's rules: ``negate`` inverts the pixels; in ``trinary`` mode (default)
-    a cell is occupied (1.0) above ``occupied_thresh``, free (0.0) below ``free_thresh`` and
-    unknown (NaN) between; ``scale`` maps the values between the thresholds linearly to 1-99 %;
-    ``raw`` reads pixel values as percent (above 100: unknown).
-
-    Raises:
-        FormatError: a missing key, a bad value or an unreadable image (names the file).
-    """
-    import cv2
-    import yaml
-
-    p = Path(path)
-    try:
-        meta = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise FormatError(p, f"cannot be read as YAML ({exc})") from exc
-    if not isinstance(meta, dict):
-        raise FormatError(p, "expected a mapping with image, resolution and origin")
-    try:
-        image = p.parent / str(meta["image"])
-        resolution = float(meta["resolution"])
-        x, y, yaw = (float(v) for v in meta["origin"])
-        negate = bool(int(meta.get("negate", 0)))
-        occupied = float(meta.get("occupied_thresh", 0.65))
-        free = float(meta.get("free_thresh", 0.196))
-        mode = str(meta.get("mode", "trinary"))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise FormatError(
-            p,
-            f"bad or missing map key ({exc})",
-            hint="map_server maps need image, resolution and origin: [x, y, yaw]",
-        ) from exc
-    if mode not in ("trinary", "scale", "raw"):
-        raise FormatError(p, f"mode must be trinary, scale or raw, got {mode!r}")
-    pixels = cv2.imread(str(image), cv2.IMREAD_GRAYSCALE)
-    if pixels is None:
-        raise FormatError(p, f"map image {image} is missing or cannot be decoded")
-    # map_server's image row 0 is the top (largest y); OccupancyGrid's row 0 is the lowest y.
-    v = np.flipud(pixels).astype(np.float32)
-    if mode == "raw":
-        prob = np.where(v <= 100, v / 100.0, np.nan).astype(np.float32)
-    else:
-        occ = v / 255.0 if negate else (255.0 - v) / 255.0
-        # Between the thresholds: unknown (trinary) or 1-99 % scaled linearly (scale).
-        between = (
-            np.nan if mode == "trinary" else (1.0 + 98.0 * (occ - free) / (occupied - free)) / 100
-        )
-        prob = np.where(occ > occupied, 1.0, np.where(occ < free, 0.0, between))
-        prob = prob.astype(np.float32)
-    return OccupancyGrid(prob, resolution, (x, y, yaw))
+    run = read_run(run_dir)
+    if not any(run.has(kind) for kind in RESULT_KINDS):
+        names = ", ".join(RUN_FILES[kind] for kind in RESULT_KINDS)
+        raise ExportError(f"{run.path}: nothing to write; the run folder has none of {names}")
+    dest = Path(out) if out is not None else run.path / "result.mcap"
+    return write_result_log(dest, run.result(), force=force).path
