@@ -34,11 +34,16 @@ LANDMARKS = REPO / "sample_data" / "landmarks"
 runner = CliRunner()
 
 
-def _run_folder(folder: Path, log: Path, trajectory: Path) -> Path:
-    """A run folder as 'slamcli run' writes it, with ``trajectory`` as its trajectory."""
+def _run_folder(folder: Path, log: Path, trajectory: Path, pipeline: str = "dense") -> Path:
+    """A run folder as 'slamcli run PIPELINE' writes it, with ``trajectory`` as its trajectory."""
     folder.mkdir(parents=True)
     shutil.copy(trajectory, folder / "trajectory.tum")
-    record = {"inputs": [{"path": str(log.resolve())}], "config": {"source": {}}, "outputs": []}
+    record = {
+        "command": f"run {pipeline}",
+        "inputs": [{"path": str(log.resolve())}],
+        "config": {pipeline: {}, "source": {}},
+        "outputs": [],
+    }
     (folder / "run.json").write_text(json.dumps(record), encoding="utf-8")
     return folder
 
@@ -275,3 +280,29 @@ def test_a_bad_height_band(tmp_path: Path) -> None:
     res = runner.invoke(app, ["map", "build", str(run), "--height-band", "0.5,0.1"])
     assert res.exit_code == 1 and "--height-band" in res.output
     assert not (run / "map.yaml").exists()
+
+
+# --- the pipeline the run declares chooses the map --------------------------------------------
+
+
+def test_an_ekf_run_without_landmarks_csv_is_still_an_ekf_run(tmp_path: Path) -> None:
+    run = _run_folder(tmp_path / "run", LANDMARKS, LANDMARKS / "groundtruth.tum", "ekf")
+    with pytest.raises(InputError, match=r"ekf pipeline without landmarks\.csv"):
+        build_map(run)
+    res = runner.invoke(app, ["map", "build", str(run)])
+    assert res.exit_code == 1 and "landmarks.csv" in res.output
+    assert not (run / "map.yaml").exists()
+
+
+def test_a_stray_landmarks_csv_does_not_make_a_dense_run_an_ekf_run(tmp_path: Path) -> None:
+    run = _run_folder(tmp_path / "run", ROOM, ROOM / "groundtruth.txt")
+    shutil.copy(LANDMARKS / "landmarks.csv", run / "landmarks.csv")
+    built = build_map(run, settings=MapSettings(frame_step=10))
+    assert built.report["kind"] == "depth"
+
+
+def test_a_run_that_names_no_pipeline(tmp_path: Path) -> None:
+    run = _run_folder(tmp_path / "run", ROOM, ROOM / "groundtruth.txt")
+    (run / "run.json").write_text(json.dumps({"inputs": [{"path": str(ROOM)}]}))
+    with pytest.raises(InputError, match="does not say which pipeline"):
+        build_map(run)

@@ -1,6 +1,10 @@
 """``build_map``: an occupancy grid from a run folder (dense RGB-D or EKF landmark run).
 
-**Dense runs** (a run folder with ``trajectory.tum`` and no ``landmarks.csv``). The run's input
+The kind of map follows the pipeline the run declares in ``run.json``
+(:data:`MAP_KINDS`), never the files that happen to lie in the folder: an EKF run that lost
+its ``landmarks.csv`` is an error, and a stray ``landmarks.csv`` in a dense run is ignored.
+
+**Dense runs** (pipelines ``dense`` and ``odometry``; ``trajectory.tum``). The run's input
 log is opened again (``run.json``'s ``inputs[0].path`` with the source options the run used,
 or ``input_path``) and its depth frames are paired with the trajectory: a frame gets the pose
 interpolated at its stamp when a trajectory stamp lies within :attr:`MapSettings.pose_max_dt_s`
@@ -23,13 +27,14 @@ Updates follow :mod:`slamcli.mapping.occupancy` (one scan per frame, l_occ +0.85
 clamped to [-2, 3.5]); the map's frame is the floor frame (x along the world's x projected on
 the floor).
 
-**EKF runs** (``landmarks.csv``). The map frame is the run's world plane. Observations are read
-again from the input (``--robot`` and the other options recorded in ``run.json``'s
-``config.source``); each ray runs from the robot's pose, interpolated in ``trajectory.tum`` at
-the observation's stamp, along the measured bearing for the measured range minus
-``landmark_radius_m`` and is carved free (one scan per observation instant). Then the cells
-within ``robot_radius_m`` of the path are set free (log-odds -2) and the cells within
-``landmark_radius_m`` (default 0.2 m) of every mapped landmark occupied (log-odds 3.5).
+**EKF runs** (pipeline ``ekf``; ``trajectory.tum`` and ``landmarks.csv``). The map frame is the
+run's world plane. Observations are read again from the input (``--robot`` and the other
+options recorded in ``run.json``'s ``config.source``); each ray runs from the robot's pose,
+interpolated in ``trajectory.tum`` at the observation's stamp, along the measured bearing for
+the measured range minus ``landmark_radius_m`` and is carved free (one scan per observation
+instant). Then the cells within ``robot_radius_m`` of the path are set free (log-odds -2) and
+the cells within ``landmark_radius_m`` (default 0.2 m) of every mapped landmark occupied
+(log-odds 3.5).
 
 **Extent.** The bounding box of everything observed plus :attr:`MapSettings.margin_m`, its
 origin snapped to a multiple of the resolution.
@@ -38,7 +43,6 @@ origin snapped to a multiple of the resolution.
 from __future__ import annotations
 
 import itertools
-import json
 import logging
 import math
 import time
@@ -50,6 +54,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, InputError
+from slamcli.formats.run_folder import RunRecord, read_run
 from slamcli.mapping.floor import (
     FloorPlane,
     Up,
@@ -67,6 +72,9 @@ F32 = NDArray[np.float32]
 
 MAP_FILES = ("map.yaml", "map.pgm", "map.png", "map.json")
 """What :func:`write_map` writes into a folder."""
+
+MAP_KINDS = {"dense": "depth", "odometry": "depth", "ekf": "landmarks"}
+"""The map each pipeline's runs get: from depth frames, or from landmark observations."""
 
 FREE_THRESH = 0.196
 OCCUPIED_THRESH = 0.65
@@ -192,32 +200,22 @@ def build_map(
         input_path: the run's input log, when it is not where run.json says.
 
     Raises:
-        InputError: the folder lacks trajectory.tum or run.json, the input moved, no frame has a
-            pose, no floor was found. ConfigError: a bad setting.
+        InputError: the folder lacks run.json, trajectory.tum (or landmarks.csv for an EKF run),
+            run.json names no pipeline that has a map, the input moved, no frame has a pose, no
+            floor was found. FormatError: a broken run.json. ConfigError: a bad setting.
     """
     t0 = time.perf_counter()
     cfg = (settings or MapSettings()).checked()
-    run = Path(run_dir)
-    if not run.is_dir():
-        raise InputError(f"{run}: no such run folder")
-    traj_path = run / "trajectory.tum"
-    if not traj_path.is_file():
-        raise InputError(
-            f"{run}: a run folder without trajectory.tum",
-            hint="pass a folder written by 'slamcli run ...'",
-        )
-    from slamcli.formats.trajectory import read_trajectory
-
-    trajectory = read_trajectory(traj_path, "tum")
+    run = read_run(run_dir)
+    trajectory = run.trajectory()
     if len(trajectory) == 0:
-        raise InputError(f"{traj_path}: holds no poses")
-    record = _read_run_json(run)
-    source_path = _input_path(run, record, input_path)
-    options = dict(record.get("config", {}).get("source", {}) or {})
-    if (run / "landmarks.csv").is_file():
-        built = _landmark_map(run, trajectory, source_path, options, cfg)
+        raise InputError(f"{run.files['trajectory']}: holds no poses")
+    kind = _map_kind(run)
+    source_path = run.input_path(input_path)
+    if kind == "landmarks":
+        built = _landmark_map(run, trajectory, source_path, cfg)
     else:
-        built = _depth_map(run, trajectory, source_path, options, cfg, progress)
+        built = _depth_map(run, trajectory, source_path, cfg, progress)
     report = built.report
     report["cells"] = cell_counts(built.grid)
     report["time_s"] = round(time.perf_counter() - t0, 3)
@@ -227,54 +225,28 @@ def build_map(
 # --- run folder ------------------------------------------------------------------------------
 
 
-def _read_run_json(run: Path) -> dict[str, Any]:
-    path = run / "run.json"
-    if not path.is_file():
+def _map_kind(run: RunRecord) -> str:
+    """The kind of map (a value of :data:`MAP_KINDS`) for the pipeline the run declares."""
+    if run.pipeline is None:
         raise InputError(
-            f"{run}: a run folder without run.json",
-            hint="pass a folder written by 'slamcli run ...'",
+            f"{run.path / 'run.json'}: does not say which pipeline made the run",
+            hint="map build takes folders written by 'slamcli run PIPELINE' (run.json's "
+            "'pipeline' or 'command')",
         )
-    try:
-        record = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: not readable JSON ({exc})") from exc
-    if not isinstance(record, dict):
-        raise InputError(f"{path}: expected a JSON object")
-    return record
-
-
-def _input_path(run: Path, record: dict[str, Any], given: str | Path | None) -> Path:
-    """The run's input log: ``given``, else run.json's, tried as it is (absolute or relative to
-    the current folder) and then relative to the run folder."""
-    if given is not None:
-        p = Path(given)
-        if not p.exists():
-            raise InputError(f"{p}: no such file or folder (--input)")
-        return p
-    inputs = record.get("inputs") or []
-    if not inputs or not isinstance(inputs[0], dict) or "path" not in inputs[0]:
+    if run.pipeline not in MAP_KINDS:
         raise InputError(
-            f"{run / 'run.json'}: names no input log",
-            hint="pass --input PATH with the log the run was made from",
+            f"{run.path}: a {run.pipeline} run; maps are built from runs of {', '.join(MAP_KINDS)}",
         )
-    recorded = Path(str(inputs[0]["path"]))
-    for candidate in (recorded, run / recorded):
-        if candidate.exists():
-            return candidate
-    raise InputError(
-        f"{run / 'run.json'}: the run's input {recorded} no longer exists",
-        hint="pass --input PATH with the log's new location",
-    )
+    return MAP_KINDS[run.pipeline]
 
 
 # --- dense runs ------------------------------------------------------------------------------
 
 
 def _depth_map(
-    run: Path,
+    run: RunRecord,
     trajectory: Trajectory,
     source_path: Path,
-    options: dict[str, Any],
     cfg: MapSettings,
     progress: ProgressFn | None,
 ) -> BuiltMap:
@@ -286,7 +258,7 @@ def _depth_map(
     accel_stamps: list[int] = []
     accel: list[F64] = []
     frames_read = without_pose = 0
-    with open_source(source_path, **options) as source:
+    with open_source(source_path, **run.source_options) as source:
         total = source.info().frames
         for frame in _depth_and_imu(source):
             if isinstance(frame, tuple):
@@ -308,7 +280,7 @@ def _depth_map(
     if not cams:
         raise InputError(
             f"{source_path}: none of its {frames_read} depth frames has a pose in "
-            f"{run / 'trajectory.tum'} (within {cfg.pose_max_dt_s * 1000:g} ms)",
+            f"{run.files['trajectory']} (within {cfg.pose_max_dt_s * 1000:g} ms)",
             hint="is --input the log this run was made from?",
         )
     poses = np.stack(cams)
@@ -332,7 +304,7 @@ def _depth_map(
     grid = _carve(scans, path_xy, cfg)
     report = {
         "kind": "depth",
-        "run": str(run),
+        "run": str(run.path),
         "input": str(source_path),
         "resolution_m": cfg.resolution_m,
         "height_band_m": list(cfg.height_band_m),
@@ -396,16 +368,16 @@ def _back_project(depth_m: F32, K: F64, step: int, max_depth_m: float) -> F64:
     return np.stack([x, y, d], axis=1)
 
 
-def _floor_points(run: Path, points: list[F32]) -> tuple[F64, str]:
+def _floor_points(run: RunRecord, points: list[F32]) -> tuple[F64, str]:
     """Points to look for the floor in: points.ply, else mesh.ply's vertices, else the depth."""
-    for name in ("points.ply", "mesh.ply"):
-        path = run / name
-        if path.is_file():
+    for kind in ("points", "mesh"):
+        path = run.files.get(kind)
+        if path is not None:
             from slamcli.formats.mesh import read_points_ply
 
             cloud, _ = read_points_ply(path)
             if len(cloud):
-                return cloud, name
+                return cloud, path.name
     return np.concatenate(points).astype(np.float64), "depth frames"
 
 
@@ -447,22 +419,20 @@ def _carve(scans: _Scans, also_xy: F64, cfg: MapSettings) -> LogOddsGrid:
 
 
 def _landmark_map(
-    run: Path,
+    run: RunRecord,
     trajectory: Trajectory,
     source_path: Path,
-    options: dict[str, Any],
     cfg: MapSettings,
 ) -> BuiltMap:
     from slamcli.formats import open_source
-    from slamcli.formats.landmark_map import read_landmarks_csv
     from slamcli.geometry import interpolate_planar, se3_to_planar
     from slamcli.types import LandmarkFrame
 
-    landmarks = read_landmarks_csv(run / "landmarks.csv")
+    landmarks = run.landmarks()
     planar = se3_to_planar(trajectory.world_from_body)
     stamps: list[int] = []
     frames: list[LandmarkFrame] = []
-    with open_source(source_path, **options) as source:
+    with open_source(source_path, **run.source_options) as source:
         for frame in source.frames(("landmarks",)):
             if isinstance(frame, LandmarkFrame) and len(frame.ranges_m):
                 stamps.append(int(frame.stamp_ns))
@@ -495,7 +465,7 @@ def _landmark_map(
         grid.set_cells(grid.disc_cells(landmarks.xy, cfg.landmark_radius_m), L_MAX)
     report = {
         "kind": "landmarks",
-        "run": str(run),
+        "run": str(run.path),
         "input": str(source_path),
         "resolution_m": cfg.resolution_m,
         "landmarks": len(landmarks),

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +9,7 @@ import numpy as np
 from slamcli.atomic import atomic_path, check_writable_folder, write_json_atomic
 from slamcli.errors import ExportError
 from slamcli.formats.occupancy import write_map_yaml
+from slamcli.formats.run_folder import RUN_JSON, is_run_dir, read_run
 from slamcli.mapping.build import MAP_FILES, BuiltMap, MapSettings, build_map
 from slamcli.types import ProgressFn
 
@@ -62,13 +62,13 @@ def write_preview(path: str | Path, built: BuiltMap) -> Path:
 def add_run_outputs(run_dir: str | Path, names: list[str]) -> None:
     """Add ``names`` to run.json's ``outputs`` (before run.json itself), atomically; nothing
     happens when the folder has no run.json."""
-    path = Path(run_dir) / "run.json"
-    if not path.is_file():
+    if not is_run_dir(run_dir):
         return
-    record = json.loads(path.read_text(encoding="utf-8"))
-    outputs = [o for o in record.get("outputs", []) if o not in names and o != "run.json"]
-    record["outputs"] = [*outputs, *names, "run.json"]
-    write_json_atomic(path, record)
+    run = read_run(run_dir)
+    record = dict(run.record)
+    outputs = [o for o in record.get("outputs", []) if o not in names and o != RUN_JSON]
+    record["outputs"] = [*outputs, *names, RUN_JSON]
+    write_json_atomic(run.path / RUN_JSON, record)
 
 
 def map_run(
