@@ -11,12 +11,15 @@ Each goes into its own folder under the demo's output: ``dense/``, ``plan/``, ``
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import json
+import os
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from slamcli.atomic import write_json_atomic
 from slamcli.errors import InputError
 from slamcli.run import RunOutcome, run_pipeline
 from slamcli.rundir import RunDir
@@ -67,23 +70,66 @@ def run_demo(
 
     rgbd = _existing(data, default_sample(), "rgbd")
     world = _existing(landmarks, default_landmarks(), "landmarks")
-    root = RunDir(out, force=force)
-    dense = run_pipeline(
-        rgbd,
-        "dense",
-        root.path / "dense",
-        force=force,
-        command="demo",
-        glb=True,
-        progress=progress,
+    # The three jobs go into one staged folder: a failed or interrupted demo leaves an earlier
+    # demo folder whole, never a new dense run beside an old plan.
+    with RunDir(out, force=force) as root:
+        dense = run_pipeline(
+            rgbd, "dense", root.staged("dense"), command="demo", glb=True, progress=progress
+        )
+        built, map_files = map_run(dense.run_dir, force=True)
+        start, goal = far_apart_free_places(built.grid, ROBOT_RADIUS_M)
+        result = plan(built.grid, start, goal, robot_radius_m=ROBOT_RADIUS_M)
+        map_file = dense.run_dir / "map.yaml"
+        with RunDir(root.staged("plan")) as plan_dir:
+            plan_files = write_plan(result, plan_dir, map_file)
+        ekf = run_pipeline(world, "ekf", root.staged("ekf"), command="demo")
+        _relocate_records(root)
+    return DemoOutcome(
+        _final_run(root, dense),
+        [root.final(p) for p in map_files],
+        result,
+        [root.final(p) for p in plan_files],
+        root.final(map_file),
+        start,
+        goal,
+        _final_run(root, ekf),
     )
-    built, map_files = map_run(dense.run_dir, force=True)
-    start, goal = far_apart_free_places(built.grid, ROBOT_RADIUS_M)
-    result = plan(built.grid, start, goal, robot_radius_m=ROBOT_RADIUS_M)
-    map_file = dense.run_dir / "map.yaml"
-    plan_files = write_plan(result, RunDir(root.path / "plan", force=force), map_file)
-    ekf = run_pipeline(world, "ekf", root.path / "ekf", force=force, command="demo")
-    return DemoOutcome(dense, map_files, result, plan_files, map_file, start, goal, ekf)
+
+
+def _final_run(root: RunDir, outcome: RunOutcome) -> RunOutcome:
+    """``outcome`` with its paths moved from ``root``'s staging folder to the final one."""
+    return replace(
+        outcome,
+        run_dir=root.final(outcome.run_dir),
+        outputs=[root.final(p) for p in outcome.outputs],
+    )
+
+
+def _relocate_records(root: RunDir) -> None:
+    """Point paths that JSON records under ``root`` hold (map.json's run, plan.json's map) at
+    the final folder instead of the staging one they were written in."""
+    swaps = [
+        (str(root.staging.resolve()), str(root.path.resolve())),
+        (str(root.staging), str(root.path)),
+    ]
+
+    def fix(value: Any) -> Any:
+        if isinstance(value, str):
+            for old, new in swaps:
+                if value == old or value.startswith(old + os.sep):
+                    return new + value[len(old) :]
+            return value
+        if isinstance(value, list):
+            return [fix(v) for v in value]
+        if isinstance(value, dict):
+            return {k: fix(v) for k, v in value.items()}
+        return value
+
+    for record in sorted(root.staging.rglob("*.json")):
+        data = json.loads(record.read_text(encoding="utf-8"))
+        fixed = fix(data)
+        if fixed != data:
+            write_json_atomic(record, fixed)
 
 
 def far_apart_free_places(

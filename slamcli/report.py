@@ -5,9 +5,9 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from slamcli.atomic import atomic_path
 from slamcli.errors import ExportError
 from slamcli.evaluation import EvalResult
-from slamcli.rundir import atomic_path
 from slamcli.types import LandmarkMap, Trajectory, TriangleMesh
 
 if TYPE_CHECKING:

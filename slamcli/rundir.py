@@ -1,26 +1,32 @@
-"""Run directories: safe preparation, atomic writes and the ``run.json`` record.
+"""Run directories: all-or-nothing output folders and the ``run.json`` record.
 
-Every file is written to a hidden temporary name in its destination folder and renamed into
-place only once complete, so an interrupted or failed run never leaves a truncated output and
-never clobbers an earlier result.
+A run writes into a hidden staging folder beside its ``--out`` and renames it into place only
+once every output is written, so an interrupted or failed run leaves either nothing or the
+earlier complete folder, never a mix of old and new files.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import functools
 import hashlib
 import json
 import os
 import platform
+import re
+import shutil
+import signal
 import sys
 import tempfile
 import time
 from collections.abc import Iterator
 from importlib import metadata
 from pathlib import Path
+from types import TracebackType
 from typing import Any
 
+from slamcli.atomic import DIR_MODE, atomic_path, check_writable_folder, unwritable
 from slamcli.errors import ExportError, InputError
 
 RUN_SCHEMA_VERSION = 1
@@ -42,52 +48,6 @@ _PACKAGES = (
 )
 _FULL_HASH_LIMIT = 256 * 1024 * 1024
 _FAST_HASH_BLOCK = 4 * 1024 * 1024
-
-
-def _current_umask() -> int:
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-_UMASK = _current_umask()
-
-
-@contextlib.contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it onto ``path`` if the block succeeds.
-
-    The temporary file keeps the destination's suffix so writers that choose a format by
-    extension (OpenCV, matplotlib, Open3D) behave as for the real name.
-    """
-    dest = Path(path)
-    if not dest.parent.is_dir():
-        raise ExportError(f"{dest}: folder {dest.parent} does not exist")
-    fd, tmp_name = tempfile.mkstemp(
-        prefix=f".{dest.stem}.", suffix=f".tmp{dest.suffix}", dir=dest.parent
-    )
-    os.close(fd)
-    tmp = Path(tmp_name)
-    # mkstemp creates the file owner-only; outputs get the permissions a plain open() would.
-    tmp.chmod(0o666 & ~_UMASK)
-    try:
-        yield tmp
-        tmp.replace(dest)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
-
-
-def write_text_atomic(path: str | Path, text: str) -> Path:
-    """Write UTF-8 text to ``path`` atomically; returns the path."""
-    with atomic_path(path) as tmp:
-        tmp.write_text(text, encoding="utf-8")
-    return Path(path)
-
-
-def write_json_atomic(path: str | Path, data: Any) -> Path:
-    """Write ``data`` as indented JSON atomically."""
-    return write_text_atomic(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
 
 
 def hash_input(path: str | Path) -> dict[str, Any]:
@@ -156,58 +116,192 @@ class Timings:
 
 
 class RunDir:
-    """An output folder for one run.
+    """An all-or-nothing output folder for one run.
 
-    ``RunDir(out, force=False)`` refuses a non-empty folder unless ``force``; the folder is
-    created with the first file written, so a run that fails before writing leaves nothing.
-    Files go in with :meth:`write_text`, :meth:`write_json` or :meth:`atomic`, each
-    atomically, and are listed in run.json's ``outputs``.
+    ``RunDir(out, force=False)`` refuses a non-empty ``out`` unless ``force``, then creates a
+    hidden staging folder ``.<name>.staging-<pid>-XXXX`` beside it (which also proves the
+    location is writable, before any work starts). Files go into the staging folder with
+    :meth:`write_text`, :meth:`write_json`, :meth:`atomic` or :meth:`output` and are listed in
+    run.json's ``outputs``. :meth:`commit` renames the staging folder onto ``out``; an earlier
+    folder is moved aside first and deleted only once the new one is in place. Used as a
+    context manager it commits when the block succeeds and removes the staging folder when it
+    raises (KeyboardInterrupt included), leaving any earlier folder untouched.
+
+    ``path`` is always the final folder: paths reported to users are built from it, while
+    writers are given paths inside ``staging``.
     """
 
     def __init__(self, path: str | Path, force: bool = False) -> None:
         self.path = Path(path)
+        self.force = force
+        self.outputs: list[str] = []
+        self.committed = False
         if self.path.exists() and not self.path.is_dir():
             raise ExportError(
                 f"{self.path}: exists and is not a folder", hint="choose another --out"
             )
+        self._refuse_unsafe_target()
+        _clean_stale_siblings(self.path)
         if self.path.is_dir() and any(self.path.iterdir()) and not force:
             raise ExportError(
                 f"{self.path}: output folder is not empty",
                 hint="pass --force to overwrite it, or choose another --out",
             )
-        self.outputs: list[str] = []
+        self._created_parents = _missing_parents(self.path.parent)
+        existing = self._created_parents[-1].parent if self._created_parents else self.path.parent
+        if not existing.is_dir():
+            raise ExportError(
+                f"{existing}: is not a folder, so {self.path} cannot be created in it",
+                hint="choose another --out",
+            )
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            self._remove_created_parents()
+            raise unwritable(self.path.parent, exc, "cannot create the output folder") from exc
+        self.staging = self._make_staging()
+
+    def _refuse_unsafe_target(self) -> None:
+        """--force replaces the whole folder: refuse one holding the working directory."""
+        if not (self.force and self.path.is_dir()):
+            return
+        target = self.path.resolve()
+        cwd = Path.cwd().resolve()
+        if target == cwd or target in cwd.parents or target == Path.home().resolve():
+            raise ExportError(
+                f"{self.path}: --force would replace this whole folder, which is the home "
+                "folder or holds the working directory",
+                hint="choose a new folder for --out",
+            )
+
+    def _make_staging(self) -> Path:
+        # Ctrl-C waits until the new folder is on the list that exit-time cleanup empties.
+        with _interrupts_deferred():
+            try:
+                staging = Path(
+                    tempfile.mkdtemp(
+                        prefix=f".{self.path.name}.staging-{os.getpid()}-", dir=self.path.parent
+                    )
+                )
+            except OSError as exc:
+                self._remove_created_parents()
+                raise unwritable(self.path.parent, exc, "cannot create the output folder") from exc
+            _LIVE_STAGING.add(staging)
+        try:
+            staging.chmod(DIR_MODE)
+            check_writable_folder(staging)
+        except BaseException:
+            shutil.rmtree(staging, ignore_errors=True)
+            self._remove_created_parents()
+            raise
+        return staging
+
+    def _remove_created_parents(self) -> None:
+        for folder in self._created_parents:
+            with contextlib.suppress(OSError):
+                folder.rmdir()
+
+    def __enter__(self) -> RunDir:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        if exc_type is None:
+            self.commit()
+        else:
+            self.abort()
+
+    def staged(self, name: str) -> Path:
+        """Where to write ``name`` (a path relative to the run folder) before the commit."""
+        if self.committed:
+            raise ExportError(f"{self.path}: already complete; nothing more can be written")
+        return self.staging / name
 
     def file(self, name: str) -> Path:
-        """Destination path of an output inside the run folder (created when first needed)."""
-        try:
-            self.path.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise ExportError(
-                f"{self.path}: cannot create the output folder ({exc.strerror})"
-            ) from exc
+        """Final path of output ``name``: what to report; it exists once committed."""
         return self.path / name
 
+    def final(self, path: str | Path) -> Path:
+        """The final path of ``path``, given inside the staging folder (others unchanged)."""
+        p = Path(path)
+        try:
+            return self.path / p.relative_to(self.staging)
+        except ValueError:
+            return p
+
     def output(self, name: str) -> Path:
-        """Destination of an output whose writer is atomic itself; it is listed in run.json."""
+        """Staged destination of an output whose writer is atomic itself; listed in run.json."""
         if name not in self.outputs:
             self.outputs.append(name)
-        return self.file(name)
+        return self.staged(name)
 
     @contextlib.contextmanager
     def atomic(self, name: str) -> Iterator[Path]:
-        """Temporary path for output ``name``; renamed into place when the block succeeds."""
-        with atomic_path(self.file(name)) as tmp:
+        """Temporary path for output ``name``; moved into the staging folder when the block
+        succeeds."""
+        with atomic_path(self.staged(name)) as tmp:
             yield tmp
         if name not in self.outputs:
             self.outputs.append(name)
 
     def write_text(self, name: str, text: str) -> Path:
+        """Write output ``name``; returns its final path."""
         with self.atomic(name) as tmp:
             tmp.write_text(text, encoding="utf-8")
         return self.file(name)
 
     def write_json(self, name: str, data: Any) -> Path:
+        """Write output ``name`` as indented JSON; returns its final path."""
         return self.write_text(name, json.dumps(data, indent=2) + "\n")
+
+    def commit(self) -> Path:
+        """Put the staged folder in place of ``path``; returns ``path``.
+
+        An existing folder is renamed aside first and deleted only after the new one is in
+        place; if the swap fails, it is renamed back and the staged files are removed.
+        """
+        if self.committed:
+            return self.path
+        aside: Path | None = None
+        try:
+            if self.path.exists():
+                aside = Path(
+                    tempfile.mkdtemp(
+                        prefix=f".{self.path.name}.old-{os.getpid()}-", dir=self.path.parent
+                    )
+                )
+                self.path.replace(aside)
+            try:
+                self.staging.replace(self.path)
+            except BaseException:
+                if aside is not None and not self.path.exists():
+                    aside.replace(self.path)
+                    aside = None
+                raise
+        except OSError as exc:
+            self.abort()
+            raise unwritable(
+                self.path, exc, "cannot put the finished output folder in place"
+            ) from exc
+        except BaseException:
+            self.abort()
+            raise
+        self.committed = True
+        _LIVE_STAGING.discard(self.staging)
+        if aside is not None:
+            shutil.rmtree(aside, ignore_errors=True)
+        return self.path
+
+    def abort(self) -> None:
+        """Remove the staging folder; ``path`` keeps whatever it held before the run."""
+        if not self.committed:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            _LIVE_STAGING.discard(self.staging)
+            self._remove_created_parents()
 
     def write_run_json(
         self,
@@ -221,7 +315,10 @@ class RunDir:
         metrics: dict[str, Any] | None = None,
         extra: dict[str, Any] | None = None,
     ) -> Path:
-        """Write run.json (schema in README.md); it lists every output written before it."""
+        """Write run.json (schema in README.md); it lists every output written before it.
+
+        Returns run.json's final path.
+        """
         from slamcli import __version__
 
         record: dict[str, Any] = {
@@ -242,3 +339,80 @@ class RunDir:
         if extra:
             record.update(extra)
         return self.write_json("run.json", record)
+
+
+_LIVE_STAGING: set[Path] = set()
+"""Staging folders of this process not yet committed or aborted."""
+
+
+@atexit.register
+def _remove_live_staging() -> None:
+    """At exit, remove staging folders no commit claimed: a Ctrl-C that struck between creating
+    a RunDir and entering its ``with`` block must leave nothing behind either."""
+    for staging in list(_LIVE_STAGING):
+        shutil.rmtree(staging, ignore_errors=True)
+    _LIVE_STAGING.clear()
+
+
+@contextlib.contextmanager
+def _interrupts_deferred() -> Iterator[None]:
+    """Hold SIGINT (delivered when the block ends) where POSIX allows it, in the main thread."""
+    import threading
+
+    mask = getattr(signal, "pthread_sigmask", None)
+    if mask is None or threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    mask(signal.SIG_BLOCK, {signal.SIGINT})
+    try:
+        yield
+    finally:
+        mask(signal.SIG_UNBLOCK, {signal.SIGINT})
+
+
+_STALE = re.compile(r"^\.(?P<name>.+)\.(?P<kind>staging|old)-(?P<pid>\d+)-[^/]*$")
+
+
+def _missing_parents(folder: Path) -> list[Path]:
+    """Folders that ``folder.mkdir(parents=True)`` would create, deepest first."""
+    missing = []
+    while not folder.exists() and folder != folder.parent:
+        missing.append(folder)
+        folder = folder.parent
+    return missing
+
+
+def _pid_alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:
+        return True
+    return True
+
+
+def _clean_stale_siblings(path: Path) -> None:
+    """Remove staging and set-aside folders of ``path`` left by a killed process.
+
+    A set-aside folder whose process died between the two renames of a commit is the last
+    complete run: when ``path`` is missing it is renamed back instead of deleted.
+    """
+    parent = path.parent
+    if not parent.is_dir():
+        return
+    try:
+        entries = list(parent.iterdir())
+    except OSError:
+        return
+    for entry in entries:
+        m = _STALE.match(entry.name)
+        if not m or m["name"] != path.name or _pid_alive(int(m["pid"])):
+            continue
+        if m["kind"] == "old" and not path.exists():
+            with contextlib.suppress(OSError):
+                entry.replace(path)
+                continue
+        shutil.rmtree(entry, ignore_errors=True)

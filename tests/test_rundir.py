@@ -9,18 +9,31 @@ from pathlib import Path
 import pytest
 
 from slamcli import __version__
+from slamcli.atomic import atomic_path
 from slamcli.errors import ExportError, InputError
-from slamcli.rundir import RUN_SCHEMA_VERSION, RunDir, Timings, atomic_path, hash_input
+from slamcli.rundir import RUN_SCHEMA_VERSION, RunDir, Timings, hash_input
 
 
 def test_refuses_non_empty_folder_without_force(tmp_path: Path) -> None:
-    (tmp_path / "old.txt").write_text("keep me")
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "old.txt").write_text("keep me")
     with pytest.raises(ExportError, match="not empty") as info:
-        RunDir(tmp_path)
+        RunDir(out)
     assert "--force" in (info.value.hint or "")
-    RunDir(tmp_path, force=True).write_text("new.txt", "x")
-    assert (tmp_path / "old.txt").read_text() == "keep me"
-    assert (tmp_path / "new.txt").read_text() == "x"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
+
+
+def test_force_replaces_the_whole_folder_once_the_new_one_is_complete(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "old.txt").write_text("earlier run")
+    with RunDir(out, force=True) as run:
+        run.write_text("new.txt", "x")
+        assert (out / "old.txt").read_text() == "earlier run"
+        assert not (out / "new.txt").exists()
+    assert sorted(p.name for p in out.iterdir()) == ["new.txt"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 
 
 def test_refuses_a_file_as_output_folder(tmp_path: Path) -> None:
@@ -51,20 +64,20 @@ def test_atomic_temp_file_keeps_the_suffix(tmp_path: Path) -> None:
 def test_run_json_records_inputs_outputs_and_timings(tmp_path: Path) -> None:
     data = tmp_path / "input.txt"
     data.write_bytes(b"0123456789")
-    run = RunDir(tmp_path / "run")
-    run.write_text("trajectory.tum", "1.0 0 0 0 0 0 0 1\n")
-    timings = Timings()
-    with timings.stage("read"):
-        pass
-    run.write_run_json(
-        command="test",
-        inputs=[hash_input(data)],
-        config={"a": 1},
-        seeds={"numpy": 7},
-        timings=timings,
-        counts={"frames": 3},
-        metrics={"ate_rmse_m": 0.1},
-    )
+    with RunDir(tmp_path / "run") as run:
+        run.write_text("trajectory.tum", "1.0 0 0 0 0 0 0 1\n")
+        timings = Timings()
+        with timings.stage("read"):
+            pass
+        run.write_run_json(
+            command="test",
+            inputs=[hash_input(data)],
+            config={"a": 1},
+            seeds={"numpy": 7},
+            timings=timings,
+            counts={"frames": 3},
+            metrics={"ate_rmse_m": 0.1},
+        )
     record = json.loads((tmp_path / "run" / "run.json").read_text())
     assert record["schema_version"] == RUN_SCHEMA_VERSION
     assert record["slamcli_version"] == __version__
@@ -95,6 +108,7 @@ def test_outputs_get_ordinary_permissions(tmp_path: Path) -> None:
 
     mask = os.umask(0o022)
     os.umask(mask)
-    run = RunDir(tmp_path / "run")
-    path = run.write_text("a.txt", "x")
+    with RunDir(tmp_path / "run") as run:
+        path = run.write_text("a.txt", "x")
     assert path.stat().st_mode & 0o777 == 0o666 & ~mask
+    assert path.parent.stat().st_mode & 0o777 == 0o777 & ~mask

@@ -102,9 +102,9 @@ def build(
                 run_dir, settings=settings, input_path=input, force=force, progress=progress
             )
         else:
-            target = RunDir(out, force=force)
-            built = build_map(run_dir, settings=settings, input_path=input, progress=progress)
-            written = write_map(target.file("map.yaml").parent, built)
+            with RunDir(out, force=force) as target:
+                built = build_map(run_dir, settings=settings, input_path=input, progress=progress)
+                written = [target.final(p) for p in write_map(target.staging, built)]
     _summary(built.report)
     render.written(written)
 

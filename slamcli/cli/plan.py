@@ -123,20 +123,20 @@ def plan(
     start_xy = parse_xy("--start", start)
     goal_xy = parse_xy("--goal", goal)
     limits = Limits(max_speed, max_yaw_rate, max_accel).checked()
-    run = RunDir(out, force=force)
-    dynamic = read_obstacles(obstacles) if obstacles is not None else []
-    grid, map_file = load_map(map)
-    result = run_plan(
-        grid,
-        start_xy,
-        goal_xy,
-        robot_radius_m=robot_radius,
-        allow_unknown=allow_unknown,
-        clearance_weight=clearance_weight,
-        limits=limits,
-        obstacles=dynamic,
-    )
-    written = write_plan(result, run, map_file)
+    with RunDir(out, force=force) as run:
+        dynamic = read_obstacles(obstacles) if obstacles is not None else []
+        grid, map_file = load_map(map)
+        result = run_plan(
+            grid,
+            start_xy,
+            goal_xy,
+            robot_radius_m=robot_radius,
+            allow_unknown=allow_unknown,
+            clearance_weight=clearance_weight,
+            limits=limits,
+            obstacles=dynamic,
+        )
+        written = write_plan(result, run, map_file)
 
     rows = plan_summary(result, map_file, start_xy, goal_xy, len(dynamic))
     render.key_values("Plan", rows)

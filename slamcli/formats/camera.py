@@ -34,8 +34,8 @@ from typing import Any
 
 import yaml
 
+from slamcli.atomic import write_text_atomic
 from slamcli.errors import ConfigError, FormatError, InputError
-from slamcli.rundir import write_text_atomic
 from slamcli.types import PinholeCamera
 
 log = logging.getLogger(__name__)

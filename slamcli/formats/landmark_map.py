@@ -11,9 +11,9 @@ from pathlib import Path
 
 import numpy as np
 
+from slamcli.atomic import atomic_path
 from slamcli.errors import FormatError
 from slamcli.formats.text import iter_data_lines
-from slamcli.rundir import atomic_path
 from slamcli.types import LandmarkMap
 
 HEADER = "id,x,y,cov_xx,cov_xy,cov_yy"

@@ -9,7 +9,7 @@ Files:
   it is never used. Coordinates are written as they are (glTF viewers assume +Y up).
 - ``points.ply``: the same PLY layout as meshes, without faces.
 
-Every writer goes through :func:`slamcli.rundir.atomic_path`: a failed write leaves nothing.
+Every writer goes through :func:`slamcli.atomic.atomic_path`: a failed write leaves nothing.
 
 Operations (:func:`simplify`, :func:`crop`, :func:`remove_small_components`) return new meshes
 and drop the vertices no remaining face uses, keeping the survivors in their original order.
@@ -26,8 +26,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from slamcli.atomic import atomic_path
 from slamcli.errors import ConfigError, ExportError, FormatError, InputError
-from slamcli.rundir import atomic_path
 from slamcli.types import TriangleMesh
 
 log = logging.getLogger(__name__)

@@ -33,10 +33,10 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.atomic import atomic_path
 from slamcli.errors import FormatError, InputError, UnknownFormatError
 from slamcli.formats.text import format_stamp, iter_data_lines, parse_floats, parse_stamp_ns
 from slamcli.geometry import make_pose, matrix_to_quat_xyzw, quat_wxyz_to_matrix
-from slamcli.rundir import atomic_path
 from slamcli.types import Trajectory
 
 logger = logging.getLogger(__name__)

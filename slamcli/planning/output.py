@@ -1,6 +1,6 @@
 """Write a plan's files into a run folder: CSVs, plan.json and plan.png.
 
-Files (all written atomically through :class:`slamcli.rundir.RunDir`):
+Files (all written through :class:`slamcli.rundir.RunDir`, which the caller commits):
 
 - ``path.csv`` ``x,y``: the grid path, cell centres in metres, start cell to goal cell;
 - ``path_smooth.csv`` ``x,y``: the smoothed path, start point to goal point;

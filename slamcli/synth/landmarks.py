@@ -317,62 +317,66 @@ def generate_landmark_world(
     Args:
         out: output folder; must be empty or absent unless ``force``.
         seed, landmarks, duration_s, sensor: as for :func:`simulate_landmark_world`.
-        force: write into a non-empty folder.
+        force: replace a non-empty folder (once the new one is complete).
         progress: called as ``progress(done, 5)`` after each file.
 
     Returns:
         Summary: ``seed``, ``landmarks``, ``duration_s``, ``odometry`` (rows),
         ``measurements`` (rows), ``path_length_m``, ``laps``, ``out`` and ``files``.
     """
-    world = simulate_landmark_world(seed, landmarks, duration_s, sensor)
-    run = RunDir(out, force=force)
-    total = 5
-    stamps = [format_stamp(s, 6) for s in world.stamps_ns]
+    # Staged and renamed into place at the end: checked before simulating, never half-written.
+    with RunDir(out, force=force) as run:
+        world = simulate_landmark_world(seed, landmarks, duration_s, sensor)
+        total = 5
+        stamps = [format_stamp(s, 6) for s in world.stamps_ns]
 
-    def done(i: int) -> None:
-        if progress is not None:
-            progress(i, total)
+        def done(i: int) -> None:
+            if progress is not None:
+                progress(i, total)
 
-    odo = ["t,v,omega"] + [
-        f"{stamps[k]},{v:.6f},{w:.6f}" for k, (v, w) in enumerate(world.odometry)
-    ]
-    files = [run.write_text("odometry.csv", "\n".join(odo) + "\n")]
-    done(1)
-    meas = ["t,id,range,bearing"] + [
-        f"{stamps[k]},{i},{r:.6f},{b:.6f}"
-        for k, i, r, b in zip(
-            world.meas_index, world.meas_ids, world.meas_range, world.meas_bearing, strict=True
-        )
-    ]
-    files.append(run.write_text("measurements.csv", "\n".join(meas) + "\n"))
-    done(2)
-    gt = ["# ground truth: planar robot poses, world_from_body", "# timestamp tx ty tz qx qy qz qw"]
-    gt += tum_lines(world.trajectory(), stamp_decimals=6)
-    files.append(run.write_text("groundtruth.tum", "\n".join(gt) + "\n"))
-    done(3)
-    marks = ["id,x,y"] + [f"{i},{x:.6f},{y:.6f}" for i, (x, y) in enumerate(world.landmarks)]
-    files.append(run.write_text("landmarks.csv", "\n".join(marks) + "\n"))
-    done(4)
-    summary = _summary(world)
-    meta = {
-        "format": "slamcli-landmarks",
-        "format_version": 1,
-        "seed": seed,
-        "landmarks": landmarks,
-        "duration_s": duration_s,
-        "start_stamp": stamps[0],
-        "sensor": asdict(world.sensor),
-        "odometry_scale": {
-            "v": float(world.odometry_scale[0]),
-            "omega": float(world.odometry_scale[1]),
-        },
-        "motion_model": "unicycle, exact arc integration of piecewise-constant controls",
-        "counts": {k: summary[k] for k in ("odometry", "measurements")},
-    }
-    files.append(run.write_text("world.json", json.dumps(meta, indent=2) + "\n"))
-    done(5)
-    summary["out"] = str(run.path)
-    summary["files"] = [str(p) for p in files]
+        odo = ["t,v,omega"] + [
+            f"{stamps[k]},{v:.6f},{w:.6f}" for k, (v, w) in enumerate(world.odometry)
+        ]
+        files = [run.write_text("odometry.csv", "\n".join(odo) + "\n")]
+        done(1)
+        meas = ["t,id,range,bearing"] + [
+            f"{stamps[k]},{i},{r:.6f},{b:.6f}"
+            for k, i, r, b in zip(
+                world.meas_index, world.meas_ids, world.meas_range, world.meas_bearing, strict=True
+            )
+        ]
+        files.append(run.write_text("measurements.csv", "\n".join(meas) + "\n"))
+        done(2)
+        gt = [
+            "# ground truth: planar robot poses, world_from_body",
+            "# timestamp tx ty tz qx qy qz qw",
+        ]
+        gt += tum_lines(world.trajectory(), stamp_decimals=6)
+        files.append(run.write_text("groundtruth.tum", "\n".join(gt) + "\n"))
+        done(3)
+        marks = ["id,x,y"] + [f"{i},{x:.6f},{y:.6f}" for i, (x, y) in enumerate(world.landmarks)]
+        files.append(run.write_text("landmarks.csv", "\n".join(marks) + "\n"))
+        done(4)
+        summary = _summary(world)
+        meta = {
+            "format": "slamcli-landmarks",
+            "format_version": 1,
+            "seed": seed,
+            "landmarks": landmarks,
+            "duration_s": duration_s,
+            "start_stamp": stamps[0],
+            "sensor": asdict(world.sensor),
+            "odometry_scale": {
+                "v": float(world.odometry_scale[0]),
+                "omega": float(world.odometry_scale[1]),
+            },
+            "motion_model": "unicycle, exact arc integration of piecewise-constant controls",
+            "counts": {k: summary[k] for k in ("odometry", "measurements")},
+        }
+        files.append(run.write_text("world.json", json.dumps(meta, indent=2) + "\n"))
+        done(5)
+        summary["out"] = str(run.path)
+        summary["files"] = [str(p) for p in files]
     log.info("wrote a %d-landmark world into %s", landmarks, run.path)
     return summary
 

@@ -53,7 +53,7 @@ from slamcli.errors import ConfigError
 from slamcli.formats.text import format_stamp
 from slamcli.formats.trajectory import tum_lines
 from slamcli.geometry import make_pose
-from slamcli.rundir import RunDir, atomic_path
+from slamcli.rundir import RunDir
 from slamcli.types import PinholeCamera, ProgressFn, Trajectory
 
 log = logging.getLogger(__name__)
@@ -725,7 +725,7 @@ def render_rgbd_sequence(
         size: (width, height) in pixels.
         seed: seeds the textures and all noise; same arguments -> bit-identical files.
         noise: apply the Kinect-style depth model, colour and accelerometer noise.
-        force: write into a non-empty folder; stale images from an earlier run are removed.
+        force: replace a non-empty folder (once the new sequence is complete).
         progress: called as ``progress(done, frames)`` after each frame.
 
     Returns:
@@ -736,47 +736,47 @@ def render_rgbd_sequence(
     """
     import cv2
 
-    world = build_rgbd_world(frames, size, seed)
-    run = RunDir(out, force=force)
-    rgb_dir, depth_dir = run.path / "rgb", run.path / "depth"
-    rgb_dir.mkdir(parents=True, exist_ok=True)
-    depth_dir.mkdir(parents=True, exist_ok=True)
-    noise_rng = np.random.default_rng([seed, _RNG_SENSOR]) if noise else None
-    traj = world.trajectory
-    rgb_names = [f"rgb/{format_stamp(s, 6)}.png" for s in traj.stamps_ns]
-    depth_names = [f"depth/{format_stamp(s, 6)}.png" for s in world.depth_stamps_ns]
-    holes = 0
-    png = [cv2.IMWRITE_PNG_COMPRESSION, 6]
-    for i in range(frames):
-        pose = traj.world_from_body[i]
-        rgb, depth = world.render(pose, noise_rng)
-        holes += int(np.count_nonzero(depth == 0))
-        raw = np.rint(depth.astype(np.float64) * DEPTH_FACTOR).astype(np.uint16)
-        with atomic_path(run.path / rgb_names[i]) as tmp:
-            _imwrite(tmp, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), png)
-        with atomic_path(run.path / depth_names[i]) as tmp:
-            _imwrite(tmp, raw, png)
-        if progress is not None:
-            progress(i + 1, frames)
-    _remove_stale(rgb_dir, {Path(n).name for n in rgb_names})
-    _remove_stale(depth_dir, {Path(n).name for n in depth_names})
+    # The folder is staged and renamed into place at the end: it is checked before rendering,
+    # and an interrupted render leaves no half-written sequence.
+    with RunDir(out, force=force) as run:
+        world = build_rgbd_world(frames, size, seed)
+        rgb_dir, depth_dir = run.file("rgb"), run.file("depth")
+        run.staged("rgb").mkdir()
+        run.staged("depth").mkdir()
+        noise_rng = np.random.default_rng([seed, _RNG_SENSOR]) if noise else None
+        traj = world.trajectory
+        rgb_names = [f"rgb/{format_stamp(s, 6)}.png" for s in traj.stamps_ns]
+        depth_names = [f"depth/{format_stamp(s, 6)}.png" for s in world.depth_stamps_ns]
+        holes = 0
+        png = [cv2.IMWRITE_PNG_COMPRESSION, 6]
+        for i in range(frames):
+            pose = traj.world_from_body[i]
+            rgb, depth = world.render(pose, noise_rng)
+            holes += int(np.count_nonzero(depth == 0))
+            raw = np.rint(depth.astype(np.float64) * DEPTH_FACTOR).astype(np.uint16)
+            with run.atomic(rgb_names[i]) as tmp:
+                _imwrite(tmp, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), png)
+            with run.atomic(depth_names[i]) as tmp:
+                _imwrite(tmp, raw, png)
+            if progress is not None:
+                progress(i + 1, frames)
 
-    origin = f"slamcli synth rgbd, {frames} frames, {size[0]}x{size[1]}, seed {seed}, " + (
-        "noise" if noise else "no noise"
-    )
-    files = [
-        run.write_text("rgb.txt", _index("color images", origin, traj.stamps_ns, rgb_names)),
-        run.write_text(
-            "depth.txt", _index("depth maps", origin, world.depth_stamps_ns, depth_names)
-        ),
-        run.write_text("groundtruth.txt", _groundtruth_text(origin, traj)),
-        run.write_text("accelerometer.txt", _accelerometer_text(origin, frames, seed, noise)),
-        run.write_text("camera.yaml", _camera_yaml(world.camera)),
-    ]
-    summary = _summary(world, seed, noise)
-    summary["hole_fraction"] = holes / (frames * size[0] * size[1])
-    summary["out"] = str(run.path)
-    summary["files"] = [str(p) for p in files] + [str(rgb_dir), str(depth_dir)]
+        origin = f"slamcli synth rgbd, {frames} frames, {size[0]}x{size[1]}, seed {seed}, " + (
+            "noise" if noise else "no noise"
+        )
+        files = [
+            run.write_text("rgb.txt", _index("color images", origin, traj.stamps_ns, rgb_names)),
+            run.write_text(
+                "depth.txt", _index("depth maps", origin, world.depth_stamps_ns, depth_names)
+            ),
+            run.write_text("groundtruth.txt", _groundtruth_text(origin, traj)),
+            run.write_text("accelerometer.txt", _accelerometer_text(origin, frames, seed, noise)),
+            run.write_text("camera.yaml", _camera_yaml(world.camera)),
+        ]
+        summary = _summary(world, seed, noise)
+        summary["hole_fraction"] = holes / (frames * size[0] * size[1])
+        summary["out"] = str(run.path)
+        summary["files"] = [str(p) for p in files] + [str(rgb_dir), str(depth_dir)]
     log.info("rendered %d frames into %s", frames, run.path)
     return summary
 
@@ -788,13 +788,6 @@ def _imwrite(path: Path, image: NDArray[Any], params: list[int]) -> None:
 
     if not cv2.imwrite(str(path), image, params):
         raise ExportError(f"{path}: OpenCV could not write the image")
-
-
-def _remove_stale(folder: Path, keep: set[str]) -> None:
-    for p in sorted(folder.glob("*.png")):
-        if p.name not in keep:
-            log.info("removing %s left by an earlier run", p)
-            p.unlink()
 
 
 def _index(what: str, origin: str, stamps_ns: NDArray[np.int64], names: list[str]) -> str:
