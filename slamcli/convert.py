@@ -91,7 +91,7 @@ def convert(
             cannot be read, or a folder of runs. ExportError: ``out`` exists without ``force``
             or cannot be written.
     """
-    from slamcli.formats.landmarks import LandmarkWorldSource
+    from slamcli.formats import sniff
     from slamcli.formats.run_folder import is_run_dir, read_run, sub_runs
 
     src, dest = Path(input), Path(out)
@@ -118,7 +118,7 @@ def convert(
         _refuse(src, given, "run folders", "a run folder is always written with Foxglove schemas")
         result = read_run(src).result()
         return ConvertResult("run", dest, write_result_log(dest, result, force=force))
-    if LandmarkWorldSource.sniff(src):
+    if sniff.landmark_world(src):
         from slamcli.formats.mcap.write import write_landmark_log
 
         _refuse(src, rgbd_only, "landmark folders", "a landmark folder has no images")
@@ -185,11 +185,10 @@ def _convert_source(
 def _export_trajectory(
     input: Path, out: Path, options: dict[str, Any], force: bool
 ) -> ConvertResult:
-    from slamcli.formats.mcap.source import McapSource
-    from slamcli.formats.trajectory import write_trajectory
+    from slamcli.formats import sniff
 
     gt_topic, gt_frame = options.get("gt_topic"), options.get("gt_frame")
-    if not McapSource.sniff(input):
+    if not sniff.mcap(input):
         raise ConfigError(f"{input}: trajectories are exported from MCAP logs only")
     if out.exists() and not force:
         raise ConfigError(f"{out}: exists", hint="pass --force to overwrite it")
@@ -198,6 +197,9 @@ def _export_trajectory(
             f"{out}: exporting a trajectory needs --gt-topic TOPIC or --gt-frame FRAME",
             hint=f"'slamcli info {input}' lists the topics",
         )
+    from slamcli.formats.mcap.source import McapSource
+    from slamcli.formats.trajectory import write_trajectory
+
     strict = bool(options.get("strict", False))
     with McapSource(input, gt_topic=gt_topic, gt_frame=gt_frame, strict=strict) as source:
         trajectory = source.groundtruth()

@@ -2,27 +2,51 @@
 
 from __future__ import annotations
 
+import importlib
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from slamcli.errors import ConfigError, InputError, UnknownFormatError
+from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, Source, SourceInfo, StreamInfo
-from slamcli.formats.landmarks import LandmarkWorldSource, MrclamSource, VictoriaParkSource
-from slamcli.formats.mcap.source import McapSource
-from slamcli.formats.tum_rgbd import TumRgbdSource
 
-SOURCES: dict[str, Any] = {
-    "tum": TumRgbdSource,
-    "mcap": McapSource,
-    "mrclam": MrclamSource,
-    "victoria": VictoriaParkSource,
-    "landmarks": LandmarkWorldSource,
+SOURCES: dict[str, str] = {
+    "tum": "slamcli.formats.tum_rgbd:TumRgbdSource",
+    "mcap": "slamcli.formats.mcap.source:McapSource",
+    "mrclam": "slamcli.formats.landmarks:MrclamSource",
+    "victoria": "slamcli.formats.landmarks:VictoriaParkSource",
+    "landmarks": "slamcli.formats.landmarks:LandmarkWorldSource",
 }
-"""Source classes by format name; each has ``sniff(path) -> bool`` and ``open(path, **options)``.
+"""Source classes by format name, as ``module:Class`` so a source's module (and what it
+imports: ``mcap``, OpenCV, ...) loads only when that source is used; :func:`source_class`
+loads one. Each class has ``sniff(path) -> bool`` and ``open(path, **options)``."""
 
-The sniffers look at disjoint things (TUM: rgb.txt/depth.txt; MCAP: suffix or magic; MRCLAM:
+SNIFFERS: dict[str, Callable[[str | Path], bool]] = {
+    "tum": sniff.tum_rgbd,
+    "mcap": sniff.mcap,
+    "mrclam": sniff.mrclam,
+    "victoria": sniff.victoria_park,
+    "landmarks": sniff.landmark_world,
+}
+"""The cheap test of each format (what its class's ``sniff`` calls), importing no source.
+
+They look at disjoint things (TUM: rgb.txt/depth.txt; MCAP: suffix or magic; MRCLAM:
 Barcodes.dat and RobotN_Odometry.dat; Victoria Park: the first record's keyword; synth
 landmarks: odometry.csv and measurements.csv), so the order only matters for odd mixtures."""
+
+
+def source_class(name: str) -> Any:
+    """The source class registered under ``name`` in :data:`SOURCES`, imported on first use.
+
+    Raises:
+        UnknownFormatError: no such format.
+    """
+    if name not in SOURCES:
+        raise UnknownFormatError(name, sorted(SOURCES), f"unknown format {name!r}")
+    module, _, cls = SOURCES[name].partition(":")
+    return getattr(importlib.import_module(module), cls)
+
 
 _LAYOUTS = (
     "a TUM RGB-D folder has rgb.txt and depth.txt; an MRCLAM folder Barcodes.dat and "
@@ -44,10 +68,10 @@ def open_source(path: str | Path, format: str = "auto", **options: Any) -> Sourc
     if format != "auto":
         if format not in SOURCES:
             raise UnknownFormatError(p, sorted(SOURCES), f"unknown format {format!r}")
-        return _open(SOURCES[format], p, options)
-    for cls in SOURCES.values():
-        if cls.sniff(p):
-            return _open(cls, p, options)
+        return _open(source_class(format), p, options)
+    for name, looks_like in SNIFFERS.items():
+        if looks_like(p):
+            return _open(source_class(name), p, options)
     raise UnknownFormatError(p, sorted(SOURCES), _LAYOUTS)
 
 
@@ -63,4 +87,14 @@ def _open(cls: Any, path: Path, options: dict[str, Any]) -> Source:
     return cls.open(path, **options)
 
 
-__all__ = ["SOURCES", "Frame", "ReadStats", "Source", "SourceInfo", "StreamInfo", "open_source"]
+__all__ = [
+    "SNIFFERS",
+    "SOURCES",
+    "Frame",
+    "ReadStats",
+    "Source",
+    "SourceInfo",
+    "StreamInfo",
+    "open_source",
+    "source_class",
+]

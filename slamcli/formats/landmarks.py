@@ -62,6 +62,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, FormatError, InputError
+from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
 from slamcli.formats.text import format_stamp, iter_data_lines, parse_floats, parse_stamp_ns
 from slamcli.formats.trajectory import read_trajectory
@@ -575,16 +576,6 @@ _MRCLAM_HINT = (
 )
 
 
-def mrclam_robots(folder: str | Path) -> list[int]:
-    """Robot numbers N with a ``RobotN_Odometry.dat`` in ``folder``, sorted."""
-    robots: list[int] = []
-    for p in Path(folder).glob("Robot*_Odometry.dat"):
-        number = p.name[len("Robot") : -len("_Odometry.dat")]
-        if number.isdigit():
-            robots.append(int(number))
-    return sorted(robots)
-
-
 class MrclamSource(LandmarkSource):
     """One robot's log in a UTIAS MRCLAM folder (see the module docstring).
 
@@ -615,7 +606,7 @@ class MrclamSource(LandmarkSource):
         self.stats = ReadStats()
         self.ignored: list[str] = []
         _require_files(self.path, ("Barcodes.dat",), "an MRCLAM input", _MRCLAM_HINT)
-        self.robots = mrclam_robots(self.path)
+        self.robots = sniff.mrclam_robots(self.path)
         if robot not in self.robots:
             listed = ", ".join(map(str, self.robots)) or "none"
             raise InputError(
@@ -650,8 +641,7 @@ class MrclamSource(LandmarkSource):
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
         """A folder with ``Barcodes.dat`` and at least one ``RobotN_Odometry.dat``."""
-        p = Path(path)
-        return p.is_dir() and (p / "Barcodes.dat").is_file() and bool(mrclam_robots(p))
+        return sniff.mrclam(path)
 
     def _classify(self, meas: Table) -> Observations:
         """Map barcodes to subjects; drop robot sightings and set aside unknown barcodes."""
@@ -881,19 +871,7 @@ class VictoriaParkSource(LandmarkSource):
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
         """A file whose first non-blank, non-comment line starts with ODOMETRY or LANDMARK."""
-        p = Path(path)
-        if not p.is_file():
-            return False
-        try:
-            with p.open("rb") as fh:
-                head = fh.read(4096).decode("utf-8-sig")
-        except (OSError, UnicodeDecodeError):
-            return False
-        for line in head.splitlines():
-            text = line.strip()
-            if text and not text.startswith("#"):
-                return text.split(maxsplit=1)[0] in _VICTORIA_FIELDS
-        return False
+        return sniff.victoria_park(path)
 
     def info(self, deep: bool = False, progress: ProgressFn | None = None) -> SourceInfo:
         """Streams (ODOMETRY and LANDMARK lines), counts and problems."""
@@ -977,8 +955,7 @@ class LandmarkWorldSource(LandmarkSource):
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
         """A folder with ``odometry.csv`` and ``measurements.csv``."""
-        p = Path(path)
-        return p.is_dir() and (p / "odometry.csv").is_file() and (p / "measurements.csv").is_file()
+        return sniff.landmark_world(path)
 
     @cached_property
     def _groundtruth(self) -> Trajectory | None:

@@ -37,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, FormatError, InputError
+from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
 from slamcli.formats.camera import DEFAULT_DEPTH_FACTOR, resolve_camera
 from slamcli.formats.pairing import associate_stamps
@@ -220,8 +221,7 @@ class TumRgbdSource(SourceBase):
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
         """A folder with ``rgb.txt`` or ``depth.txt``; :meth:`open` names whichever is missing."""
-        p = Path(path)
-        return p.is_dir() and ((p / "rgb.txt").is_file() or (p / "depth.txt").is_file())
+        return sniff.tum_rgbd(path)
 
     def close(self) -> None:
         self._maps = None

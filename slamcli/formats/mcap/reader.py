@@ -40,11 +40,11 @@ from mcap.records import Channel, ChunkIndex, Schema, Statistics
 
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats.mcap.records import ChannelInfo, ChannelStats, LogHealth, RawMessage
+from slamcli.formats.sniff import MCAP_MAGIC as MAGIC
 from slamcli.formats.text import format_stamp
 
 logger = logging.getLogger(__name__)
 
-MAGIC = b"\x89MCAP0\r\n"
 DEFAULT_REORDER_WINDOW_NS = 1_000_000_000
 
 _HEADER = int(Opcode.HEADER)

@@ -47,6 +47,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, InputError, TopicNotFoundError
+from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
 from slamcli.formats.mcap.adapters import Adapter, adapter_for, normalize_schema_name
 from slamcli.formats.mcap.decode import DecodeError, decoder_for
@@ -78,7 +79,6 @@ from slamcli.types import (
 
 log = logging.getLogger(__name__)
 
-MAGIC = b"\x89MCAP0\r\n"
 
 IMAGE_SCHEMAS = frozenset(
     {
@@ -205,13 +205,7 @@ class McapSource(SourceBase):
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
         """A ``.mcap`` file, or any file starting with the MCAP magic."""
-        p = Path(path)
-        if not p.is_file():
-            return False
-        if p.suffix.lower() == ".mcap":
-            return True
-        with p.open("rb") as fh:
-            return fh.read(len(MAGIC)) == MAGIC
+        return sniff.mcap(path)
 
     def close(self) -> None:
         self.log.close()

@@ -1,0 +1,86 @@
+"""Cheap tests of what an input is, by suffix, magic bytes or folder layout.
+
+They live apart from the sources so that :func:`slamcli.formats.open_source` can pick a
+format without importing every source module (the MCAP source pulls in the ``mcap`` package
+and the message decoders); each source class's ``sniff`` calls the function here.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+"""The bytes every MCAP file starts (and ends) with."""
+
+VICTORIA_KEYWORDS = ("ODOMETRY", "LANDMARK")
+"""The record keywords that start the lines of a Victoria Park file."""
+
+_HEAD_BYTES = 4096
+
+
+def tum_rgbd(path: str | Path) -> bool:
+    """A folder with ``rgb.txt`` or ``depth.txt`` (the source names whichever is missing)."""
+    p = Path(path)
+    return p.is_dir() and ((p / "rgb.txt").is_file() or (p / "depth.txt").is_file())
+
+
+def mcap(path: str | Path) -> bool:
+    """A ``.mcap`` file, or any file starting with the MCAP magic."""
+    p = Path(path)
+    if not p.is_file():
+        return False
+    if p.suffix.lower() == ".mcap":
+        return True
+    with p.open("rb") as fh:
+        return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+
+
+def mrclam_robots(folder: str | Path) -> list[int]:
+    """Robot numbers N with a ``RobotN_Odometry.dat`` in ``folder``, sorted."""
+    robots: list[int] = []
+    for p in Path(folder).glob("Robot*_Odometry.dat"):
+        number = p.name[len("Robot") : -len("_Odometry.dat")]
+        if number.isdigit():
+            robots.append(int(number))
+    return sorted(robots)
+
+
+def mrclam(path: str | Path) -> bool:
+    """A folder with ``Barcodes.dat`` and at least one ``RobotN_Odometry.dat``."""
+    p = Path(path)
+    return p.is_dir() and (p / "Barcodes.dat").is_file() and bool(mrclam_robots(p))
+
+
+def victoria_park(path: str | Path) -> bool:
+    """A file whose first non-blank, non-comment line starts with ODOMETRY or LANDMARK."""
+    p = Path(path)
+    if not p.is_file():
+        return False
+    try:
+        with p.open("rb") as fh:
+            head = fh.read(_HEAD_BYTES).decode("utf-8-sig")
+    except (OSError, UnicodeDecodeError):
+        return False
+    for line in head.splitlines():
+        text = line.strip()
+        if text and not text.startswith("#"):
+            return text.split(maxsplit=1)[0] in VICTORIA_KEYWORDS
+    return False
+
+
+def landmark_world(path: str | Path) -> bool:
+    """A ``slamcli synth landmarks`` folder: ``odometry.csv`` and ``measurements.csv``."""
+    p = Path(path)
+    return p.is_dir() and (p / "odometry.csv").is_file() and (p / "measurements.csv").is_file()
+
+
+__all__ = [
+    "MCAP_MAGIC",
+    "VICTORIA_KEYWORDS",
+    "landmark_world",
+    "mcap",
+    "mrclam",
+    "mrclam_robots",
+    "tum_rgbd",
+    "victoria_park",
+]
