@@ -15,6 +15,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.errors import InputError
+
 ProgressFn = Callable[[int, "int | None"], None]
 """Progress callback: ``progress(done, total)``; total is None when unknown."""
 
@@ -35,12 +37,18 @@ class Trajectory:
         stamps = np.asarray(self.stamps_ns, dtype=np.int64).reshape(-1)
         poses = np.asarray(self.world_from_body, dtype=np.float64)
         if poses.ndim != 3 or poses.shape[1:] != (4, 4) or poses.shape[0] != stamps.shape[0]:
-            raise ValueError(
-                f"Trajectory needs (N,) stamps and (N,4,4) poses, got {stamps.shape} and "
+            raise InputError(
+                f"a trajectory needs (N,) stamps and (N,4,4) poses, got {stamps.shape} and "
                 f"{poses.shape}"
             )
         if stamps.size > 1 and not np.all(np.diff(stamps) > 0):
-            raise ValueError("Trajectory stamps must be strictly increasing")
+            i = int(np.flatnonzero(np.diff(stamps) <= 0)[0])
+            raise InputError(
+                "a trajectory's stamps must be strictly increasing: pose "
+                f"{i + 1} at {stamps[i + 1] * 1e-9:.9f} s follows pose {i} at "
+                f"{stamps[i] * 1e-9:.9f} s",
+                hint="sort the poses by time and drop repeated stamps",
+            )
         object.__setattr__(self, "stamps_ns", stamps)
         object.__setattr__(self, "world_from_body", poses)
 

@@ -9,8 +9,9 @@ from typing import TYPE_CHECKING, Any, TypeVar
 
 import typer
 
+from slamcli.atomic import UNWRITABLE_HINT
 from slamcli.cli import render
-from slamcli.errors import DataLossError, SlamcliError, TopicNotFoundError
+from slamcli.errors import DataLossError, ExportError, SlamcliError, TopicNotFoundError
 
 if TYPE_CHECKING:
     from slamcli.run import RunOutcome
@@ -41,11 +42,28 @@ def boundary(fn: F) -> F:
         except SlamcliError as exc:
             render.error(exc)
             raise typer.Exit(exc.exit_code) from None
+        except OSError as exc:
+            error = os_error(exc)
+            render.error(error)
+            raise typer.Exit(error.exit_code) from None
         except KeyboardInterrupt:
             render.err.print("[bold red]interrupted[/]")
             raise typer.Exit(130) from None
 
     return wrapper  # type: ignore[return-value]
+
+
+def os_error(exc: OSError) -> SlamcliError:
+    """A one-line error for an operating-system failure no library code turned into a
+    SlamcliError: the path it names and the system's reason. Writing is the usual culprit
+    (permissions, a full disk), so the hint is about the output location."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    if exc.filename is None:
+        return ExportError(reason, hint=UNWRITABLE_HINT)
+    where = str(exc.filename)
+    if exc.filename2 is not None:
+        where += f" -> {exc.filename2}"
+    return ExportError(f"{where}: {reason}", hint=UNWRITABLE_HINT)
 
 
 def exit_if_data_lost(outcome: RunOutcome, input: Path) -> None:

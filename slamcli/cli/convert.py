@@ -157,8 +157,10 @@ def convert(
     gt_topic: GtTopic = None,
     gt_frame: GtFrame = None,
 ) -> None:
+    from slamcli.atomic import check_writable_file
     from slamcli.convert import convert as convert_input
 
+    check_writable_file(out)
     options = SourceOptions.pick(locals()).open_kwargs()
     with render.progress("converting frames") as progress:
         result = convert_input(

@@ -145,10 +145,13 @@ def export(
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing --out.")] = False,
 ) -> None:
     """Export a mesh as PLY or GLB, optionally cropped, filtered and simplified."""
+    from slamcli.atomic import check_writable_file
     from slamcli.formats.mesh import export_mesh
 
     fmt = resolve_format(format, out)
     box = parse_crop(crop) if crop is not None else None
+    if out is not None:
+        check_writable_file(out)
     result = export_mesh(
         input,
         fmt,

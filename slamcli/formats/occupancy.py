@@ -104,6 +104,15 @@ NaN, ``resolution_m`` float64, ``origin_xy_yaw`` (3,) float64."""
 
 MAP_SUFFIXES = {".yaml": "map_server YAML", ".yml": "map_server YAML", ".npz": "slamcli grid"}
 
+_NPZ_EXPECTED = (
+    "a slamcli occupancy grid, a NumPy .npz archive with the arrays format, format_version, "
+    "prob, resolution_m and origin_xy_yaw"
+)
+_NPZ_HINT = (
+    "such files are written by slamcli.formats.occupancy.write_map_npz; 'slamcli map build' "
+    "writes a map_server map.yaml, which 'slamcli plan' and 'slamcli map show' also read"
+)
+
 _REQUIRED_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh")
 _KEYS_HINT = "a map_server YAML needs image, resolution, origin: [x, y, yaw], negate, "
 _KEYS_HINT += "occupied_thresh and free_thresh (mode is optional)"
@@ -715,15 +724,28 @@ def read_map_npz(path: str | Path) -> OccupancyGrid:
     try:
         z = np.load(p, allow_pickle=False)
         if not isinstance(z, np.lib.npyio.NpzFile):
-            raise FormatError(p, "holds a single array, not a slamcli .npz grid")
+            raise FormatError(
+                p,
+                f"holds a single array, not a slamcli .npz grid ({_NPZ_EXPECTED})",
+                hint=_NPZ_HINT,
+            )
         with z:
             arrays = {name: z[name] for name in z.files}
     except FormatError:
         raise
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
-        raise FormatError(p, f"is not a readable .npz archive ({exc})") from exc
+    except OSError as exc:
+        raise FormatError(p, f"cannot be read ({exc.strerror or exc})") from exc
+    except (ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+        # numpy's own words ("pickled data", "bad zip") say nothing about what a map should be.
+        raise FormatError(
+            p, f"is not a readable .npz archive: expected {_NPZ_EXPECTED}", hint=_NPZ_HINT
+        ) from exc
     if "format" not in arrays or str(arrays["format"]) != NPZ_FORMAT:
-        raise FormatError(p, f"is not a slamcli occupancy grid (no format '{NPZ_FORMAT}')")
+        raise FormatError(
+            p,
+            f"is not a slamcli occupancy grid (no format '{NPZ_FORMAT}'): expected {_NPZ_EXPECTED}",
+            hint=_NPZ_HINT,
+        )
     for name in ("format_version", "prob", "resolution_m", "origin_xy_yaw"):
         if name not in arrays:
             raise FormatError(p, f"missing array '{name}'")
