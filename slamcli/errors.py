@@ -54,9 +54,8 @@ class TopicNotFoundError(InputError):
     """A log has no topic (or several) matching what was asked for.
 
     ``candidates`` rows (topic, type, encoding, count, rate) are shown as a table by the CLI.
+    It is bad input, exit code 1, like the other InputErrors: 2 is for command-line usage errors.
     """
-
-    exit_code = 2
 
     def __init__(
         self, msg: str, hint: str | None = None, candidates: Sequence[Sequence[str]] = ()

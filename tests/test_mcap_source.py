@@ -138,7 +138,7 @@ def test_two_colour_topics_need_a_choice_and_list_the_candidates(tmp_path: Path)
         assert source.topic("rgb") == "/b/image"
         assert source.topic("depth") == "/d"
     res = runner.invoke(app, ["run", "odometry", str(log), "--out", str(tmp_path / "o")])
-    assert res.exit_code == 2
+    assert res.exit_code == 1
     assert "choose one with --rgb-topic" in res.output
     assert "/a/image" in res.output and "/b/image" in res.output
     assert not (tmp_path / "o").exists()

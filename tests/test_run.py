@@ -155,7 +155,7 @@ def test_run_dense_without_a_depth_stream_says_so(tmp_path: Path) -> None:
     assert "no depth.txt" in res.output and "Traceback" not in res.output
     log = _image_log(tmp_path / "colour_only.mcap", {"/camera/color/image_raw": "rgb8"})
     res = runner.invoke(app, ["run", "dense", str(log), "--out", str(tmp_path / "b")])
-    assert res.exit_code == 2
+    assert res.exit_code == 1
     assert "no depth topics found" in res.output and "--depth-topic" in res.output
     assert not (tmp_path / "a").exists() and not (tmp_path / "b").exists()
 

@@ -252,8 +252,12 @@ class McapSource(SourceBase):
 
     def topic(self, role: str, required: bool = True) -> str | None:
         """The topic used for ``role`` (rgb, depth, camera, odometry, landmarks, groundtruth,
-        imu)."""
-        if role in self._chosen:
+        imu).
+
+        Without a fitting topic, ``required`` raises TopicNotFoundError listing the candidates,
+        even after an optional look-up (``start_pose``, ``info``) found none.
+        """
+        if role in self._chosen and (self._chosen[role] is not None or not required):
             return self._chosen[role]
         schemas, flag = {
             "rgb": (IMAGE_SCHEMAS, "--rgb-topic"),
@@ -294,11 +298,19 @@ class McapSource(SourceBase):
                 chosen = non_odom[0]
         if chosen is None and (required or len(candidates) > 1):
             what = "no" if not candidates else f"{len(candidates)}"
+            listed = candidates or typed
+            hint = "the table lists the topics of a fitting type"
+            if not listed:
+                listed = sorted(self._channels)
+                hint = (
+                    f"no topic has a fitting type ({', '.join(sorted(schemas))}); "
+                    "the table lists the log's topics"
+                )
             raise TopicNotFoundError(
                 f"{self.path}: {what} {role} topic{'s' if len(candidates) != 1 else ''} "
                 f"found; choose one with {flag}",
-                hint="the table lists the topics of a fitting type",
-                candidates=[self._candidate_row(t) for t in (candidates or typed)],
+                hint=hint,
+                candidates=[self._candidate_row(t) for t in listed],
             )
         self._chosen[role] = chosen
         return chosen
