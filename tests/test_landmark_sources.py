@@ -306,7 +306,7 @@ def test_mrclam_copied_folder_with_a_bad_measurement_line(tmp_path: Path) -> Non
     lines = (src_folder / "Robot2_Measurement.dat").read_text().splitlines(keepends=True)
     lines[99] = "1248444300.123 \t 63 \t abc \t 0.1\n"  # line 100
     (folder / "Robot2_Measurement.dat").write_text("".join(lines))
-    with pytest.raises(FormatError, match=r"Robot2_Measurement.dat:100: column 2: .*'abc'") as e:
+    with pytest.raises(FormatError, match=r"Robot2_Measurement.dat:100: column 3: .*'abc'") as e:
         open_source(folder, robot=2)
     assert e.value.line == 100
     lines[99] = "1248444300.123 \t 63 \t 2.0\n"
@@ -389,8 +389,8 @@ def test_measurement_time_backwards(tmp_path: Path) -> None:
     ("bad", "match"),
     [
         ("100.600 0.2", r"Robot1_Odometry.dat:6: expected 3 fields \(time, v, omega\), found 2"),
-        ("100.600 0.2 x", r"Robot1_Odometry.dat:6: column 2: value 'x' is not a number"),
-        ("100.600 0.2 nan", r"Robot1_Odometry.dat:6: column 2: value 'nan' is not finite"),
+        ("100.600 0.2 x", r"Robot1_Odometry.dat:6: column 3: value 'x' is not a number"),
+        ("100.600 0.2 nan", r"Robot1_Odometry.dat:6: column 3: value 'nan' is not finite"),
         ("1e2x 0.2 0.1", r"Robot1_Odometry.dat:6: timestamp '1e2x' is not a number"),
     ],
 )
@@ -519,7 +519,7 @@ def test_victoria_park_ignore_ids() -> None:
             "ODOMETRY 0 1 1 0 0 1 0 0 1 0 1\nLANDMARK 1 5 1 1 1 0\n",
             r":2: LANDMARK has 7 values, found 6",
         ),
-        ("# c\n\nODOMETRY 0 1 1 0 0 1 0 0 1 0 x\n", r":3: column 9: value 'x'"),
+        ("# c\n\nODOMETRY 0 1 1 0 0 1 0 0 1 0 x\n", r":3: column 12: value 'x'"),
         ("ODOMETRY 0 1 1 0 0 1 0 0 1 0 1\nVERTEX2 1 0 0 0\n", r":2: unknown record 'VERTEX2'"),
     ],
 )

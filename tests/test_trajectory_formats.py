@@ -150,7 +150,7 @@ def test_duplicate_policies(tmp_path: Path) -> None:
 
 MALFORMED = {
     "columns": ("1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 1\n3.0 0 0 0 0 0 1\n", "expected 8 columns"),
-    "not a number": ("1.0 0 0 0 0 0 0 1\n\n3.0 0 0 x 0 0 0 1\n", "column 3: value 'x'"),
+    "not a number": ("1.0 0 0 0 0 0 0 1\n\n3.0 0 0 x 0 0 0 1\n", "column 4: value 'x'"),
     "nan": ("# c\n1.0 0 0 0 0 0 0 1\n3.0 0 nan 0 0 0 0 1\n", "not finite"),
     "inf": ("1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 1\n3.0 0 0 0 0 0 0 inf\n", "not finite"),
     "quaternion": ("1.0 0 0 0 0 0 0 1\n2.0 0 0 0 0 0 0 1\n3.0 0 0 0 0 0 0.2 1.1\n", "norm is"),

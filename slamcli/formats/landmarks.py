@@ -281,7 +281,7 @@ def _read_table_slow(
             )
         if stamped:
             stamps.append(parse_stamp_ns(fields[0], path, number))
-            rows.append(parse_floats(fields[1:], path, number))
+            rows.append(parse_floats(fields[1:], path, number, first_column=2))
         else:
             rows.append(parse_floats(fields, path, number))
         numbers.append(number)
@@ -822,7 +822,7 @@ class VictoriaParkSource(LandmarkSource):
                     hint=_VICTORIA_HINT,
                 )
             i, j = self._index(fields[1], number, "pose"), self._index(fields[2], number, tag)
-            values = parse_floats(fields[3:], self.path, number)
+            values = parse_floats(fields[3:], self.path, number, first_column=4)
             if tag == "ODOMETRY":
                 if i != pose or j <= i:
                     raise FormatError(

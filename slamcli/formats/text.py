@@ -59,11 +59,15 @@ def parse_stamp_ns(text: str, path: str | Path, line: int) -> int:
 
 
 def parse_floats(
-    fields: list[str], path: str | Path, line: int, what: str = "value"
+    fields: list[str], path: str | Path, line: int, what: str = "value", first_column: int = 1
 ) -> list[float]:
-    """Convert fields to finite floats, naming the file, line and column on failure."""
+    """Convert fields to finite floats, naming the file, line and column on failure.
+
+    ``first_column`` is the 1-based column of ``fields[0]`` in the line (2 when the caller has
+    split off a leading timestamp), so the message points at the column a text editor shows.
+    """
     out: list[float] = []
-    for col, f in enumerate(fields, start=1):
+    for col, f in enumerate(fields, start=first_column):
         try:
             v = float(f)
         except ValueError:

@@ -229,21 +229,24 @@ def _collect(
 
 
 def _to_floats(
-    path: Path, numbers: list[int], rows: list[list[str]], what: str
+    path: Path, numbers: list[int], rows: list[list[str]], what: str, first_column: int = 1
 ) -> NDArray[np.float64]:
-    """(N, C) float64 from string rows; a bad value is reported at its line and column."""
+    """(N, C) float64 from string rows; a bad value is reported at its line and 1-based column
+    (``first_column`` is the column of ``rows[i][0]`` in the file)."""
     try:
         values = np.array(rows, dtype=np.float64)
     except ValueError:
         # Slow path only on failure: find the line and column to report.
         for lineno, fields in zip(numbers, rows, strict=True):
-            parse_floats(fields, path, lineno, what)
+            parse_floats(fields, path, lineno, what, first_column)
         raise FormatError(path, f"a {what} is not a number") from None
     bad = ~np.isfinite(values)
     if bad.any():
         row, col = np.argwhere(bad)[0]
         raise FormatError(
-            path, f"column {col + 1}: {what} {rows[row][col]!r} is not finite", numbers[row]
+            path,
+            f"column {col + first_column}: {what} {rows[row][col]!r} is not finite",
+            numbers[row],
         )
     return values
 
@@ -269,7 +272,7 @@ def _read_tum(path: Path) -> PoseTable:
     stamps = np.array(
         [parse_stamp_ns(r[0], path, n) for n, r in zip(numbers, rows, strict=True)], dtype=np.int64
     )
-    values = _to_floats(path, numbers, [r[1:] for r in rows], "value")
+    values = _to_floats(path, numbers, [r[1:] for r in rows], "value", first_column=2)
     quats_wxyz = values[:, [6, 3, 4, 5]]
     poses = make_pose(_rotations_from_quats(path, numbers, quats_wxyz), values[:, :3])
     return PoseTable(stamps, poses, np.array(numbers, dtype=np.int64), path, "tum")
@@ -284,7 +287,7 @@ def _read_euroc(path: Path) -> PoseTable:
                 path, f"timestamp {r[0]!r} is not an integer number of nanoseconds", lineno
             )
         stamps_list.append(int(r[0]))
-    values = _to_floats(path, numbers, [r[1:] for r in rows], "value")
+    values = _to_floats(path, numbers, [r[1:] for r in rows], "value", first_column=2)
     poses = make_pose(_rotations_from_quats(path, numbers, values[:, 3:7]), values[:, :3])
     return PoseTable(
         np.array(stamps_list, dtype=np.int64),

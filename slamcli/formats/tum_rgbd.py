@@ -260,7 +260,7 @@ class TumRgbdSource(SourceBase):
                     p, f"expected 'timestamp ax ay az', found {len(fields)} fields", number
                 )
             stamps.append(parse_stamp_ns(fields[0], p, number))
-            rows.append(parse_floats(fields[1:], p, number, "acceleration"))
+            rows.append(parse_floats(fields[1:], p, number, "acceleration", first_column=2))
         t = np.asarray(stamps, dtype=np.int64)
         order = np.argsort(t, kind="stable")
         return t[order], np.asarray(rows, dtype=np.float64).reshape(-1, 3)[order]
