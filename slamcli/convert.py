@@ -127,18 +127,22 @@ def convert(
     if sub_runs(src):
         # Raises the error that names the runs the folder holds.
         read_run(src)
-    return _convert_source(
-        src,
-        dest,
-        options,
-        flavor=flavor or "ros2",
-        compress_images=compress_images,
-        depth_encoding=depth_encoding,
-        jpeg_quality=jpeg_quality,
-        max_frames=max_frames,
-        force=force,
-        progress=progress,
-    )
+    from slamcli.formats import open_source
+    from slamcli.formats.mcap.write import write_source_mcap
+
+    with open_source(src, **options) as source:
+        summary = write_source_mcap(
+            source,
+            dest,
+            flavor=flavor or "ros2",
+            compress_images=compress_images,
+            depth_encoding=depth_encoding,
+            jpeg_quality=jpeg_quality,
+            max_frames=max_frames,
+            force=force,
+            progress=progress,
+        )
+    return ConvertResult("source", dest, summary)
 
 
 def _refuse(input: Path, flags: list[str], what: str, why: str) -> None:
@@ -149,37 +153,6 @@ def _refuse(input: Path, flags: list[str], what: str, why: str) -> None:
             f"{input}: {', '.join(flags)} {verb} for RGB-D inputs, not {what}",
             hint=f"{why}; drop those options",
         )
-
-
-def _convert_source(
-    input: Path,
-    out: Path,
-    options: dict[str, Any],
-    *,
-    flavor: str,
-    compress_images: str,
-    depth_encoding: str,
-    jpeg_quality: int,
-    max_frames: int | None,
-    force: bool,
-    progress: ProgressFn | None,
-) -> ConvertResult:
-    from slamcli.formats import open_source
-    from slamcli.formats.mcap.write import write_source_mcap
-
-    with open_source(input, **options) as source:
-        summary = write_source_mcap(
-            source,
-            out,
-            flavor=flavor,
-            compress_images=compress_images,
-            depth_encoding=depth_encoding,
-            jpeg_quality=jpeg_quality,
-            max_frames=max_frames,
-            force=force,
-            progress=progress,
-        )
-    return ConvertResult("source", out, summary)
 
 
 def _export_trajectory(

@@ -105,10 +105,29 @@ class Source(Protocol):
         ...
 
 
+_C = TypeVar("_C", bound="Closing")
 _S = TypeVar("_S", bound="SourceBase")
 
 
-class SourceBase:
+class Closing:
+    """The context-manager protocol of readers: leaving the block calls :meth:`close`."""
+
+    def close(self) -> None:
+        """Release files and caches (nothing by default)."""
+
+    def __enter__(self: _C) -> _C:
+        return self
+
+    def __exit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        self.close()
+
+
+class SourceBase(Closing):
     """What every source class shares: ``open`` and the context-manager protocol.
 
     Subclasses take their options as keyword arguments and release what they hold in
@@ -120,9 +139,6 @@ class SourceBase:
         """Open ``path``; ``options`` are the constructor's keyword arguments."""
         return cls(path, **options)  # type: ignore[call-arg]
 
-    def close(self) -> None:
-        """Release files and caches (nothing by default)."""
-
     def start_pose(self) -> NDArray[np.float64] | None:
         """The ground-truth pose (x, y, yaw) at the first frame; None for logs without one."""
         return None
@@ -130,14 +146,3 @@ class SourceBase:
     def landmark_truth(self) -> LandmarkMap | None:
         """The surveyed landmark positions; None for logs without landmarks."""
         return None
-
-    def __enter__(self: _S) -> _S:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()

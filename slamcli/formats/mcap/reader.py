@@ -30,7 +30,6 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from operator import itemgetter
 from pathlib import Path
-from types import TracebackType
 from typing import BinaryIO, Protocol
 
 from mcap.data_stream import ReadDataStream
@@ -39,6 +38,7 @@ from mcap.opcode import Opcode
 from mcap.records import Channel, ChunkIndex, Schema, Statistics
 
 from slamcli.errors import ConfigError, FormatError, InputError
+from slamcli.formats.base import Closing
 from slamcli.formats.mcap.records import ChannelInfo, ChannelStats, LogHealth, RawMessage
 from slamcli.formats.sniff import MCAP_MAGIC as MAGIC
 from slamcli.formats.text import format_stamp
@@ -87,7 +87,7 @@ class _BadChunkError(Exception):
     """A chunk's bytes are unusable; the message says why."""
 
 
-class McapLog:
+class McapLog(Closing):
     """An MCAP file opened for streaming reads; use it as a context manager.
 
     Args:
@@ -146,17 +146,6 @@ class McapLog:
         except BaseException:
             self._file.close()
             raise
-
-    def __enter__(self) -> McapLog:
-        return self
-
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
-        self.close()
 
     def close(self) -> None:
         """Release the file; generators already running keep their own handles."""
