@@ -9,16 +9,16 @@ never overlap in time):
   text with its dependencies, as ``ros2 bag record`` stores it); ``flavor="foxglove"`` writes
   JSON messages with the official Foxglove JSON schemas (``schema_encoding="jsonschema"``,
   ``message_encoding="json"``, binary fields base64 as Foxglove's JSON convention has it).
-* :func:`write_landmark_log` turns a landmark run (a ``slamcli synth landmarks`` folder, or
-  the same data in memory as a :class:`LandmarkLog`) into a log for ``slamcli run ekf``:
-  odometry on ``/odom`` (``nav_msgs/msg/Odometry``, CDR, in both flavours: Foxglove has no
-  message for velocities), observations on ``/landmarks`` (``slamcli.LandmarkObservations``,
-  JSON, see :mod:`slamcli.formats.mcap.observations`) and ground truth on ``/ground_truth``
-  (``geometry_msgs/msg/PoseStamped``; foxglove: ``foxglove.PoseInFrame`` plus world ->
-  ``base_link`` on ``/tf``). Each odometry message's twist is the control applied from its
-  stamp to the next (``linear.x`` = v, ``angular.z`` = omega); its pose is the dead reckoning
-  of the controls before it (exact arc integration from x = y = yaw = 0 in ``odom``), as a
-  wheel-odometry node would publish.
+* :func:`write_landmark_log` turns a landmark run (a ``slamcli synth landmarks`` folder, or the
+  same data in memory as a :class:`~slamcli.formats.landmarks.LandmarkLog`) into a log for
+  ``slamcli run ekf``: odometry on ``/odom`` (``nav_msgs/msg/Odometry``, CDR, in both flavours:
+  Foxglove has no message for velocities), observations on ``/landmarks``
+  (``slamcli.LandmarkObservations``, JSON, see :mod:`slamcli.formats.mcap.observations`) and ground
+  truth on ``/ground_truth`` (``geometry_msgs/msg/PoseStamped``; foxglove: ``foxglove.PoseInFrame``
+  plus world -> ``base_link`` on ``/tf``). Each odometry message's twist is the control applied
+  from its stamp to the next (``linear.x`` = v, ``angular.z`` = omega); its pose is the dead
+  reckoning of the controls before it (exact arc integration from x = y = yaw = 0 in ``odom``), as
+  a wheel-odometry node would publish.
 * :func:`write_result_log` / :func:`write_result_mcap` turn a SLAM result or a run folder into a
   ``result.mcap`` a user drags into Foxglove: the trajectory, the occupancy map, the point
   cloud and the mesh (a GLB model inside a ``foxglove.SceneUpdate``).
