@@ -162,16 +162,17 @@ class RunDir:
         self.staging = self._make_staging()
 
     def _refuse_unsafe_target(self) -> None:
-        """--force replaces the whole folder: refuse one holding the working directory."""
-        if not (self.force and self.path.is_dir()):
+        """The finished folder replaces ``path`` as a whole: refuse the home folder and one
+        holding the working directory, which would vanish from under the shell."""
+        if not self.path.is_dir():
             return
         target = self.path.resolve()
         cwd = Path.cwd().resolve()
         if target == cwd or target in cwd.parents or target == Path.home().resolve():
             raise ExportError(
-                f"{self.path}: --force would replace this whole folder, which is the home "
-                "folder or holds the working directory",
-                hint="choose a new folder for --out",
+                f"{self.path}: is the home folder or holds the working directory; a run "
+                "folder is put in place as a whole, replacing what was there",
+                hint="give --out the name of a new folder",
             )
 
     def _make_staging(self) -> Path:

@@ -145,14 +145,21 @@ def test_an_old_folder_set_aside_by_a_killed_commit_comes_back(tmp_path: Path) -
     assert (tmp_path / "run" / "run.json").read_bytes() == old
 
 
-def test_force_refuses_to_replace_the_working_directory(
+def test_refuses_to_replace_the_working_directory(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     (tmp_path / "precious.txt").write_text("x")
     monkeypatch.chdir(tmp_path)
-    with pytest.raises(ExportError, match="working directory"):
-        RunDir(".", force=True)
+    for out in (".", str(tmp_path), ".."):
+        with pytest.raises(ExportError, match="working directory"):
+            RunDir(out, force=True)
     assert (tmp_path / "precious.txt").exists()
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    monkeypatch.chdir(empty)
+    with pytest.raises(ExportError, match="working directory"):
+        RunDir(".")
+    assert _hidden(tmp_path) == [] and _hidden(empty) == []
 
 
 # --- real processes, real SIGINT --------------------------------------------------------------
@@ -245,3 +252,22 @@ def test_sigint_leaves_nothing_or_the_old_folder_or_a_complete_one(tmp_path: Pat
             assert not out.exists(), f"{case.name}: {sorted(p.name for p in out.iterdir())}"
         assert sent[0] or proc.returncode == 0
     shutil.rmtree(tmp_path, ignore_errors=True)
+
+
+def test_demo_records_name_final_paths_not_the_staging_folder(tmp_path: Path) -> None:
+    from slamcli.demo import _relocate_records
+
+    with RunDir(tmp_path / "demo") as root:
+        staged = root.staged("plan")
+        staged.mkdir()
+        record = {
+            "map": {"path": str(root.staging.resolve() / "dense" / "map.yaml"), "bytes": 3},
+            "runs": [str(root.staging / "dense"), "elsewhere"],
+            "n": 1,
+        }
+        (staged / "plan.json").write_text(json.dumps(record))
+        _relocate_records(root)
+    fixed = json.loads((tmp_path / "demo" / "plan" / "plan.json").read_text())
+    assert fixed["map"]["path"] == str((tmp_path / "demo").resolve() / "dense" / "map.yaml")
+    assert fixed["runs"] == [str(tmp_path / "demo" / "dense"), "elsewhere"]
+    assert fixed["n"] == 1 and fixed["map"]["bytes"] == 3
