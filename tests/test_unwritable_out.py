@@ -267,3 +267,20 @@ def test_junk_npz_map_says_what_was_expected(command: str, tmp_path: Path) -> No
     assert "pickled" not in text
     assert not (tmp_path / "p").exists()
     _no_leftovers(tmp_path)
+
+
+def test_map_build_into_its_run_folder_checks_the_folder_first(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import slamcli.mapping.output
+
+    run_folder = tmp_path / "a_run"
+    run_folder.mkdir()
+    (run_folder / "run.json").write_text("{}")
+    monkeypatch.setattr(slamcli.mapping.output, "build_map", _never)
+    _probe_fails(OSError(errno.EROFS, os.strerror(errno.EROFS), str(run_folder)), monkeypatch)
+    res = runner.invoke(app, ["map", "build", str(run_folder)])
+    assert res.exit_code == 1, res.output
+    assert "Traceback" not in res.output
+    assert f"{run_folder}: cannot write (Read-only file system)" in _flat(res.output)
+    assert sorted(p.name for p in run_folder.iterdir()) == ["run.json"]
