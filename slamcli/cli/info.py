@@ -28,9 +28,28 @@ For an MCAP log: every topic with its type, encoding, count and rate; the log's 
 frames pair (by log time; --deep decodes every frame and pairs by header stamps, which also \
 checks every chunk's CRC).
 
-Exit codes: 0 ok; 1 bad input (with --strict, also an unreadable image or a damaged log); 2 an \
-ambiguous or missing topic choice (the candidates are listed); 3 some listed images are missing \
-or (with --deep) cannot be decoded, or the log is damaged, so reading would lose data.
+Maps (a map_server .yaml, an .npz map, a run folder's map.yaml), trajectory files (TUM, KITTI, \
+EuRoC) and g2o pose graphs are described too: size and cell counts; poses, time span, rate and \
+path length; vertices and edges.
+
+Exit codes: 0 ok; 1 bad input, or an ambiguous or missing topic choice (the candidates are \
+listed) (with --strict, also an unreadable image or a damaged log); 2 usage; 3 some listed \
+images are missing or (with --deep) cannot be decoded, or the log is damaged, so reading would \
+lose data.
+
+Examples:
+
+[bold]slamcli info sample_data/rgbd_room[/]
+
+[bold]slamcli info sample_data/landmarks --json[/]
+
+[bold]slamcli info ../shared/data/mcap/nav2_turtlebot.mcap[/]
+
+[bold]slamcli info ../shared/data/maps/turtlebot3_world.yaml[/]
+
+[bold]slamcli info ../shared/data/trajectories/freiburg1_xyz-groundtruth.txt[/]
+
+[bold]slamcli info ../shared/data/pose_graphs/intel.g2o --json[/]
 """
 
 
@@ -44,8 +63,9 @@ def info(
     input: Annotated[
         Path,
         typer.Argument(
-            help="A TUM RGB-D folder, an MCAP file, an MRCLAM folder, a Victoria Park file or a "
-            "'slamcli synth landmarks' folder.",
+            help="A TUM RGB-D folder, an MCAP file, an MRCLAM folder, a Victoria Park file, a "
+            "'slamcli synth landmarks' folder; or a map (.yaml, .npz, a run folder with "
+            "map.yaml), a trajectory file (TUM, KITTI, EuRoC) or a .g2o pose graph.",
             show_default=False,
         ),
     ],
@@ -60,6 +80,14 @@ def info(
 ) -> None:
     from slamcli.formats import open_source
 
+    kind = _other_kind(input)
+    if kind is not None:
+        facts = _describe_other(kind, input)
+        if json_out:
+            render.print_json({"kind": kind, "path": str(input), **facts})
+        else:
+            render.key_values(f"{kind}: {input}", _other_items(kind, facts))
+        return
     with open_source(input, **source.open_kwargs()) as src:
         if deep:
             with render.progress("decoding images") as progress:
@@ -81,6 +109,74 @@ def info(
             f"{input}: the log is damaged; reading uses what is left",
             hint="--strict stops instead; 'mcap recover' can rebuild a damaged MCAP file",
         )
+
+
+_TRAJECTORY_SUFFIXES = (".txt", ".tum", ".csv", ".kitti")
+
+
+def _other_kind(path: Path) -> str | None:
+    """``map``, ``trajectory`` or ``pose graph`` for inputs that are not logs, else None."""
+    from slamcli.formats import SNIFFERS
+
+    if any(looks_like(path) for looks_like in SNIFFERS.values()):
+        return None
+    suffix = path.suffix.lower()
+    if suffix == ".g2o":
+        return "pose graph"
+    if suffix in (".yaml", ".yml", ".npz") or (path.is_dir() and (path / "map.yaml").is_file()):
+        return "map"
+    if path.is_file() and suffix in _TRAJECTORY_SUFFIXES:
+        return "trajectory"
+    return None
+
+
+def _describe_other(kind: str, path: Path) -> dict[str, Any]:
+    """JSON-able facts about a map, a trajectory file or a pose graph."""
+    if kind == "map":
+        from slamcli.cli.map_cmd import describe_map
+
+        return describe_map(path)
+    if kind == "pose graph":
+        from slamcli.formats.g2o import read_g2o
+
+        return read_g2o(path).summary()
+    import numpy as np
+
+    from slamcli.formats.trajectory import read_poses
+
+    table = read_poses(path)
+    facts: dict[str, Any] = {"format": table.format, "poses": len(table)}
+    if table.timed and len(table) > 1:
+        span = float(table.stamps_ns[-1] - table.stamps_ns[0]) * 1e-9
+        facts["span_s"] = span
+        facts["rate_hz"] = (len(table) - 1) / span if span > 0 else None
+    steps = np.linalg.norm(np.diff(table.positions, axis=0), axis=1)
+    facts["path_length_m"] = float(steps.sum())
+    return facts
+
+
+def _other_items(kind: str, d: dict[str, Any]) -> dict[str, Any]:
+    if kind == "map":
+        from slamcli.cli.map_cmd import map_items
+
+        return map_items(d)
+    if kind == "pose graph":
+        ids = f", {d['pose_ids']} pose ids" if d["pose_ids"] != d["vertices"] else ""
+        return {
+            "graph": f"{d['dimension']}, {d['vertices']} vertices{ids}",
+            "edges": f"{d['edges']}: {d['odometry_edges']} between consecutive ids, "
+            f"{d['loop_closure_edges']} loop closures",
+            "fixed": ", ".join(map(str, d["fixed"])) or "none",
+        }
+    items: dict[str, Any] = {"format": d["format"], "poses": d["poses"]}
+    if "span_s" in d:
+        items["span"] = f"{d['span_s']:.2f} s"
+        if d["rate_hz"]:
+            items["rate"] = f"{d['rate_hz']:.1f} Hz"
+    else:
+        items["times"] = "none (KITTI poses are numbered, not timed)"
+    items["path length"] = f"{d['path_length_m']:.2f} m"
+    return items
 
 
 def _show(info: SourceInfo) -> None:

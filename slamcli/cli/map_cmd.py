@@ -38,7 +38,8 @@ run folder (added to its run.json), or into --out.
 Exit codes: 0 ok; 1 a folder that is not a run, an input that moved, no floor found, a bad \
 option, or map files present without --force.
 
-Example: [bold]slamcli map build runs/lab --resolution 0.05 --height-band 0.05,1.2[/]
+Example (after the 'slamcli run dense' example): \
+[bold]slamcli map build runs/room_dense --resolution 0.05 --height-band 0.05,1.2[/]
 """
 
 
@@ -141,24 +142,45 @@ def show(
         ),
     ],
 ) -> None:
-    """Print a map's size, resolution, origin and free / occupied / unknown cell counts."""
+    """Print a map's size, resolution, origin and free / occupied / unknown cell counts.
+
+    Examples:
+
+    [bold]slamcli map show ../shared/data/maps/turtlebot3_world.yaml[/]
+
+    [bold]slamcli map show runs/room_dense[/] (after the 'slamcli map build' example)
+    """
+    render.key_values("Map", map_items(describe_map(map)))
+
+
+def describe_map(path: Path) -> dict[str, Any]:
+    """A map's file, size in cells, resolution (m), origin (x m, y m, yaw rad) and free /
+    occupied / unknown cell counts, JSON-able (``map show``, ``info``)."""
     from slamcli.mapping import cell_counts
     from slamcli.planning.planner import load_map
 
-    grid, file = load_map(map)
+    grid, file = load_map(path)
     h, w = grid.prob.shape
-    res = grid.resolution_m
-    counts = cell_counts(grid)
-    x, y, yaw = grid.origin_xy_yaw
-    render.key_values(
-        "Map",
-        {
-            "file": file,
-            "size": f"{w} x {h} cells ({w * res:g} x {h * res:g} m)",
-            "resolution": f"{res:g} m",
-            "origin": f"({x:g}, {y:g}) m, yaw {yaw:g} rad",
-            "free": counts["free"],
-            "occupied": counts["occupied"],
-            "unknown": counts["unknown"],
-        },
-    )
+    return {
+        "file": str(file),
+        "width": int(w),
+        "height": int(h),
+        "resolution_m": float(grid.resolution_m),
+        "origin_xy_yaw": [float(v) for v in grid.origin_xy_yaw],
+        **{k: int(v) for k, v in cell_counts(grid).items()},
+    }
+
+
+def map_items(d: dict[str, Any]) -> dict[str, Any]:
+    """:func:`describe_map`'s figures as the lines ``map show`` prints."""
+    w, h, res = d["width"], d["height"], d["resolution_m"]
+    x, y, yaw = d["origin_xy_yaw"]
+    return {
+        "file": d["file"],
+        "size": f"{w} x {h} cells ({w * res:g} x {h * res:g} m)",
+        "resolution": f"{res:g} m",
+        "origin": f"({x:g}, {y:g}) m, yaw {yaw:g} rad",
+        "free": d["free"],
+        "occupied": d["occupied"],
+        "unknown": d["unknown"],
+    }
