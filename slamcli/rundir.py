@@ -133,6 +133,9 @@ class RunDir:
 
     def __init__(self, path: str | Path, force: bool = False) -> None:
         self.path = Path(path)
+        # A symlinked --out (runs kept on another disk) is replaced where it points, so the
+        # link keeps working and the rename stays on the target's file system.
+        self._target = self.path.resolve() if self.path.is_symlink() else self.path
         self.force = force
         self.outputs: list[str] = []
         self.committed = False
@@ -141,24 +144,25 @@ class RunDir:
                 f"{self.path}: exists and is not a folder", hint="choose another --out"
             )
         self._refuse_unsafe_target()
-        _clean_stale_siblings(self.path)
+        _clean_stale_siblings(self._target)
         if self.path.is_dir() and any(self.path.iterdir()) and not force:
             raise ExportError(
                 f"{self.path}: output folder is not empty",
                 hint="pass --force to overwrite it, or choose another --out",
             )
-        self._created_parents = _missing_parents(self.path.parent)
-        existing = self._created_parents[-1].parent if self._created_parents else self.path.parent
+        parent = self._target.parent
+        self._created_parents = _missing_parents(parent)
+        existing = self._created_parents[-1].parent if self._created_parents else parent
         if not existing.is_dir():
             raise ExportError(
                 f"{existing}: is not a folder, so {self.path} cannot be created in it",
                 hint="choose another --out",
             )
         try:
-            self.path.parent.mkdir(parents=True, exist_ok=True)
+            parent.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             self._remove_created_parents()
-            raise unwritable(self.path.parent, exc, "cannot create the output folder") from exc
+            raise unwritable(parent, exc, "cannot create the output folder") from exc
         self.staging = self._make_staging()
 
     def _refuse_unsafe_target(self) -> None:
@@ -181,12 +185,15 @@ class RunDir:
             try:
                 staging = Path(
                     tempfile.mkdtemp(
-                        prefix=f".{self.path.name}.staging-{os.getpid()}-", dir=self.path.parent
+                        prefix=f".{self._target.name}.staging-{os.getpid()}-",
+                        dir=self._target.parent,
                     )
                 )
             except OSError as exc:
                 self._remove_created_parents()
-                raise unwritable(self.path.parent, exc, "cannot create the output folder") from exc
+                raise unwritable(
+                    self._target.parent, exc, "cannot create the output folder"
+                ) from exc
             _LIVE_STAGING.add(staging)
         try:
             staging.chmod(DIR_MODE)
@@ -269,18 +276,17 @@ class RunDir:
             return self.path
         aside: Path | None = None
         try:
-            if self.path.exists():
+            target = self._target
+            if target.exists():
                 aside = Path(
-                    tempfile.mkdtemp(
-                        prefix=f".{self.path.name}.old-{os.getpid()}-", dir=self.path.parent
-                    )
+                    tempfile.mkdtemp(prefix=f".{target.name}.old-{os.getpid()}-", dir=target.parent)
                 )
-                self.path.replace(aside)
+                target.replace(aside)
             try:
-                self.staging.replace(self.path)
+                self.staging.replace(target)
             except BaseException:
-                if aside is not None and not self.path.exists():
-                    aside.replace(self.path)
+                if aside is not None and not target.exists():
+                    aside.replace(target)
                     aside = None
                 raise
         except OSError as exc:

@@ -271,3 +271,18 @@ def test_demo_records_name_final_paths_not_the_staging_folder(tmp_path: Path) ->
     assert fixed["map"]["path"] == str((tmp_path / "demo").resolve() / "dense" / "map.yaml")
     assert fixed["runs"] == [str(tmp_path / "demo" / "dense"), "elsewhere"]
     assert fixed["n"] == 1 and fixed["map"]["bytes"] == 3
+
+
+def test_a_symlinked_out_is_replaced_where_it_points(tmp_path: Path) -> None:
+    disk = tmp_path / "disk"
+    disk.mkdir()
+    real = disk / "run"
+    _write_old_run(real)
+    link = tmp_path / "run"
+    link.symlink_to(real)
+    with RunDir(link, force=True) as run:
+        path = run.write_text("new.txt", "x")
+    assert path == link / "new.txt"
+    assert link.is_symlink()
+    assert sorted(p.name for p in real.iterdir()) == ["new.txt"]
+    assert _hidden(tmp_path) == [] and _hidden(disk) == []
