@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from slamcli.geometry.planar import wrap_angle
+from slamcli.geometry.planar import sin_ratio, unicycle_step, wrap_angle
 
 F64 = NDArray[np.float64]
 
@@ -51,25 +51,21 @@ _ROBOT = 3
 def arc_step(
     x: float, y: float, th: float, v: float, omega: float, dt: float
 ) -> tuple[float, float, float, float, float, float, float]:
-    """The exact arc in plain floats: new (x, y, θ), the chord length L, the chord's heading φ,
-    and ∂L/∂v, ∂L/∂ω (the hot path of prediction: no array is built here)."""
+    """The exact arc of :func:`~slamcli.geometry.planar.unicycle_step` in plain floats: new
+    (x, y, θ) with θ wrapped, then what the Jacobians need: the chord length L, the chord's
+    heading φ, ∂L/∂v and ∂L/∂ω (the hot path of prediction: no array is built here)."""
+    nx, ny, nth = unicycle_step(x, y, th, v, omega, dt)
     a = 0.5 * omega * dt
-    if abs(a) < 1e-4:
-        # Series of sin(a)/a and its derivative: exact to double precision at this size.
-        s = 1.0 - a * a / 6.0
-        ds = -a / 3.0
-    else:
-        s = math.sin(a) / a
-        ds = (a * math.cos(a) - math.sin(a)) / (a * a)
-    chord = v * dt * s
-    phi = th + a
-    new_th = math.remainder(th + omega * dt, 2.0 * math.pi)
+    s = float(sin_ratio(a))
+    # The closed form of d(sin a / a)/da cancels to nothing near 0; its series is exact to
+    # double precision there.
+    ds = -a / 3.0 if abs(a) < 1e-4 else (a * math.cos(a) - math.sin(a)) / (a * a)
     return (
-        x + chord * math.cos(phi),
-        y + chord * math.sin(phi),
-        new_th,
-        chord,
-        phi,
+        float(nx),
+        float(ny),
+        math.remainder(float(nth), 2.0 * math.pi),
+        v * dt * s,
+        th + a,
         dt * s,
         v * dt * ds * 0.5 * dt,
     )

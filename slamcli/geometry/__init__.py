@@ -3,9 +3,12 @@
 from slamcli.geometry.align import umeyama
 from slamcli.geometry.planar import (
     compose_planar,
+    integrate_unicycle,
     interpolate_planar,
     planar_to_se3,
     se3_to_planar,
+    sin_ratio,
+    unicycle_step,
     wrap_angle,
 )
 from slamcli.geometry.se3 import (
@@ -28,6 +31,7 @@ from slamcli.geometry.se3 import (
 __all__ = [
     "compose",
     "compose_planar",
+    "integrate_unicycle",
     "interpolate_planar",
     "interpolate_poses",
     "inverse",
@@ -41,9 +45,11 @@ __all__ = [
     "se3_exp",
     "se3_log",
     "se3_to_planar",
+    "sin_ratio",
     "slerp",
     "so3_exp",
     "so3_log",
     "umeyama",
+    "unicycle_step",
     "wrap_angle",
 ]

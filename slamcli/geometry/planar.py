@@ -6,6 +6,9 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 F64 = NDArray[np.float64]
+Real = float | F64
+"""A float or a float64 array: the unicycle functions broadcast over arrays and stay cheap on
+plain floats."""
 
 
 def wrap_angle(a: ArrayLike) -> F64:
@@ -43,6 +46,64 @@ def compose_planar(a: ArrayLike, b: ArrayLike) -> F64:
         ],
         axis=-1,
     )
+
+
+def sin_ratio(a: Real) -> Real:
+    """``sin(a) / a`` elementwise, radians, with its limit 1 at ``a = 0``.
+
+    Exactly ``sin(a) / a`` wherever ``a != 0``: the zero test adds 1 to both numerator and
+    denominator only where ``a == 0``, so there is no branch and no tolerance. Cheap on plain
+    floats too, where the motion models call it once per odometry record.
+    """
+    zero = a == 0.0
+    return (np.sin(a) + zero) / (a + zero)
+
+
+def unicycle_step(
+    x: Real, y: Real, yaw: Real, v: Real, omega: Real, dt: Real
+) -> tuple[Real, Real, Real]:
+    """A unicycle's pose after speed ``v`` (m/s) and turn rate ``omega`` (rad/s) held for ``dt``
+    seconds from (``x``, ``y``, ``yaw``) (m, m, rad); all arguments broadcast together.
+
+    The exact arc, written in its chord form so the straight line (ω = 0) is the same formula's
+    limit rather than a separate branch::
+
+        a = ω dt / 2,  L = v dt sin(a) / a,  φ = yaw + a
+        x' = x + L cos φ,  y' = y + L sin φ,  yaw' = yaw + ω dt
+
+    Returns:
+        New x, y (m) and yaw (rad). The yaw is not wrapped, so a sequence of steps keeps a
+        continuous heading; wrap it with :func:`wrap_angle` where a range matters.
+    """
+    a = 0.5 * omega * dt
+    chord = v * dt * sin_ratio(a)
+    phi = yaw + a
+    return x + chord * np.cos(phi), y + chord * np.sin(phi), yaw + omega * dt
+
+
+def integrate_unicycle(start: ArrayLike, controls: ArrayLike, dt: ArrayLike) -> F64:
+    """Poses along piecewise-constant unicycle controls, by :func:`unicycle_step`.
+
+    Args:
+        start: (3,) x, y (m) and yaw (rad) before the first control.
+        controls: (K, 2) float64 v (m/s) and omega (rad/s), control k held for ``dt[k]``.
+        dt: seconds each control is held, a scalar or (K,).
+
+    Returns:
+        (K + 1, 3) float64 poses: the start, then the pose after each control. Bit for bit the
+        same as applying :func:`unicycle_step` K times: headings and positions are running sums
+        (``np.cumsum`` adds in order), and every step's displacement depends only on its own
+        heading. Yaw is continuous (not wrapped).
+    """
+    p0 = np.asarray(start, dtype=np.float64)
+    u = np.asarray(controls, dtype=np.float64).reshape(-1, 2)
+    t = np.broadcast_to(np.asarray(dt, dtype=np.float64), (len(u),))
+    v, w = u[:, 0], u[:, 1]
+    yaw = np.cumsum(np.concatenate([p0[2:3], w * t]))
+    dx, dy, _ = unicycle_step(0.0, 0.0, yaw[:-1], v, w, t)
+    x = np.cumsum(np.concatenate([p0[0:1], dx]))
+    y = np.cumsum(np.concatenate([p0[1:2], dy]))
+    return np.stack([x, y, yaw], axis=1)
 
 
 def interpolate_planar(stamps_ns: ArrayLike, xy_yaw: ArrayLike, at_ns: ArrayLike) -> F64:

@@ -4,10 +4,9 @@ The robot is a unicycle. Its true controls are piecewise constant over each odom
 ``dt``: straight legs at ``speed`` m/s and 90-degree left turns of constant yaw rate, laid out as
 a rounded rectangle (12 m and 8 m legs, turns of about 1.9 m radius, 52 m per lap) that closes
 exactly, centred on the origin and starting at its lower-left leg heading +x. Poses advance by
-the exact arc integration of each control::
+the exact arc integration of each control (:func:`slamcli.geometry.integrate_unicycle`)::
 
-    w != 0:  x += v/w (sin(th + w dt) - sin th),  y += v/w (cos th - cos(th + w dt)),  th += w dt
-    w == 0:  x += v dt cos th,  y += v dt sin th
+    a = w dt / 2,  L = v dt sin(a) / a,  x += L cos(th + a),  y += L sin(th + a),  th += w dt
 
 Odometry reports each control the way wheel encoders do: scaled by a constant factor per run
 (``1 + b`` with ``b ~ N(0, bias_sigma)``, a wrong wheel radius or track width) plus white noise.
@@ -46,7 +45,7 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError
 from slamcli.formats.text import format_stamp
 from slamcli.formats.trajectory import tum_lines
-from slamcli.geometry import make_pose, so3_exp
+from slamcli.geometry import integrate_unicycle, make_pose, so3_exp
 from slamcli.rundir import RunDir
 from slamcli.types import ProgressFn, Trajectory
 
@@ -159,25 +158,6 @@ def _lap_controls(sensor: LandmarkSensor) -> F64:
     return np.concatenate(legs)
 
 
-def _integrate(start: F64, controls: F64, dt: float) -> F64:
-    """Exact unicycle integration of (K, 2) controls from a (3,) pose -> (K + 1, 3) poses."""
-    poses = np.empty((len(controls) + 1, 3))
-    poses[0] = start
-    # Sequential by nature; each step is a few flops.
-    for k, (v, w) in enumerate(controls):
-        x, y, th = poses[k]
-        if abs(w) > 1e-12:
-            th1 = th + w * dt
-            poses[k + 1] = (
-                x + v / w * (math.sin(th1) - math.sin(th)),
-                y + v / w * (math.cos(th) - math.cos(th1)),
-                th1,
-            )
-        else:
-            poses[k + 1] = (x + v * dt * math.cos(th), y + v * dt * math.sin(th), th)
-    return poses
-
-
 def _wrap(angle: F64) -> F64:
     """Angles wrapped to (-pi, pi]."""
     return np.pi - np.mod(np.pi - angle, 2 * np.pi)
@@ -247,8 +227,8 @@ def simulate_landmark_world(
     start = np.array(
         [-_STRAIGHT_X_M / 2, -_STRAIGHT_Y_M / 2 - sensor.speed * _TURN_S * 2 / np.pi, 0.0]
     )
-    poses = _integrate(start, controls, dt)
-    lap_path = _integrate(start, lap, dt)[:, :2]
+    poses = integrate_unicycle(start, controls, dt)
+    lap_path = integrate_unicycle(start, lap, dt)[:, :2]
 
     rng_world = np.random.default_rng([seed, 0])
     rng_odo = np.random.default_rng([seed, 1])

@@ -82,6 +82,7 @@ from slamcli.formats.mcap.observations import (
 from slamcli.formats.mcap.observations import landmark_message, landmark_schema
 from slamcli.formats.mesh import mesh_to_glb
 from slamcli.formats.run_folder import RESULT_KINDS, RUN_FILES, read_run
+from slamcli.geometry.planar import integrate_unicycle, wrap_angle
 from slamcli.types import (
     ImuFrame,
     OccupancyGrid,
@@ -744,24 +745,14 @@ def write_source_mcap(
 def dead_reckon(stamps_ns: NDArray[np.int64], odometry: NDArray[np.float64]) -> NDArray[np.float64]:
     """(K, 3) x, y, yaw at each odometry stamp from x = y = yaw = 0 at the first.
 
-    Each control (v, omega) is applied from its stamp to the next by exact arc integration;
-    the pose at stamp k is the result of controls 0 .. k-1.
+    Each control (v, omega) is applied from its stamp to the next by exact arc integration
+    (:func:`~slamcli.geometry.planar.integrate_unicycle`); the pose at stamp k is the result of
+    controls 0 .. k-1. Yaw is wrapped to [-pi, pi).
     """
-    poses = np.zeros((len(stamps_ns), 3))
     dts = np.diff(np.asarray(stamps_ns, dtype=np.int64)) * 1e-9
-    x = y = th = 0.0
-    # Sequential by nature; a few flops per step.
-    for k, dt in enumerate(dts.tolist()):
-        v, w = float(odometry[k, 0]), float(odometry[k, 1])
-        if abs(w) > 1e-12:
-            th1 = th + w * dt
-            x += v / w * (math.sin(th1) - math.sin(th))
-            y += v / w * (math.cos(th) - math.cos(th1))
-            th = th1
-        else:
-            x += v * dt * math.cos(th)
-            y += v * dt * math.sin(th)
-        poses[k + 1] = (x, y, math.atan2(math.sin(th), math.cos(th)))
+    # No stamps, no poses: the slice drops the start pose integration always returns.
+    poses = integrate_unicycle(np.zeros(3), odometry[: len(dts)], dts)[: len(stamps_ns)]
+    poses[:, 2] = wrap_angle(poses[:, 2])
     return poses
 
 
