@@ -284,3 +284,18 @@ def test_map_build_into_its_run_folder_checks_the_folder_first(
     assert "Traceback" not in res.output
     assert f"{run_folder}: cannot write (Read-only file system)" in _flat(res.output)
     assert sorted(p.name for p in run_folder.iterdir()) == ["run.json"]
+
+
+def test_os_error_hint_follows_the_reason(tmp_path: Path) -> None:
+    from slamcli.cli.common import os_error
+
+    p = str(tmp_path / "x")
+    full = os_error(OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), p))
+    assert isinstance(full, ExportError) and "--out" in (full.hint or "")
+    denied = os_error(PermissionError(errno.EACCES, os.strerror(errno.EACCES), p))
+    assert isinstance(denied, InputError) and "permissions" in (denied.hint or "")
+    missing = os_error(FileNotFoundError(errno.ENOENT, os.strerror(errno.ENOENT), p))
+    assert isinstance(missing, InputError) and missing.hint is None
+    assert missing.msg == f"{p}: {os.strerror(errno.ENOENT)}"
+    moved = os_error(OSError(errno.EXDEV, os.strerror(errno.EXDEV), p, None, p + "2"))
+    assert moved.msg.startswith(f"{p} -> {p}2: ")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import functools
 from collections.abc import Callable
 from pathlib import Path
@@ -11,7 +12,13 @@ import typer
 
 from slamcli.atomic import UNWRITABLE_HINT
 from slamcli.cli import render
-from slamcli.errors import DataLossError, ExportError, SlamcliError, TopicNotFoundError
+from slamcli.errors import (
+    DataLossError,
+    ExportError,
+    InputError,
+    SlamcliError,
+    TopicNotFoundError,
+)
 
 if TYPE_CHECKING:
     from slamcli.run import RunOutcome
@@ -53,17 +60,31 @@ def boundary(fn: F) -> F:
     return wrapper  # type: ignore[return-value]
 
 
+_WRITE_ERRNOS = {
+    errno.ENOSPC,
+    errno.EROFS,
+    errno.EFBIG,
+    *([errno.EDQUOT] if hasattr(errno, "EDQUOT") else []),
+}
+_ACCESS_ERRNOS = {errno.EACCES, errno.EPERM}
+
+
 def os_error(exc: OSError) -> SlamcliError:
     """A one-line error for an operating-system failure no library code turned into a
-    SlamcliError: the path it names and the system's reason. Writing is the usual culprit
-    (permissions, a full disk), so the hint is about the output location."""
+    SlamcliError: the path it names and the system's reason, with a hint where the reason
+    tells what to do (a full or read-only disk: write elsewhere; permissions: check them)."""
     reason = exc.strerror or str(exc) or type(exc).__name__
-    if exc.filename is None:
-        return ExportError(reason, hint=UNWRITABLE_HINT)
-    where = str(exc.filename)
-    if exc.filename2 is not None:
-        where += f" -> {exc.filename2}"
-    return ExportError(f"{where}: {reason}", hint=UNWRITABLE_HINT)
+    msg = reason
+    if exc.filename is not None:
+        where = str(exc.filename)
+        if exc.filename2 is not None:
+            where += f" -> {exc.filename2}"
+        msg = f"{where}: {reason}"
+    if exc.errno in _WRITE_ERRNOS:
+        return ExportError(msg, hint=UNWRITABLE_HINT)
+    if exc.errno in _ACCESS_ERRNOS:
+        return InputError(msg, hint="check the permissions of that file or folder")
+    return InputError(msg)
 
 
 def exit_if_data_lost(outcome: RunOutcome, input: Path) -> None:
