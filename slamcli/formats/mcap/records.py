@@ -75,9 +75,13 @@ class LogHealth:
         if self.truncated:
             at = self.truncated_at_byte
             where = f" at byte {at}" if at is not None else ""
+            read = (
+                "no message could be read"
+                if self.last_good_time_ns is None
+                else f"messages up to {_sec(self.last_good_time_ns)} were read"
+            )
             out.append(
-                f"truncated: the log ends without a footer{where}; messages up to "
-                f"{_sec(self.last_good_time_ns)} were read (try 'mcap recover')"
+                f"truncated: the log ends without a footer{where}; {read} (try 'mcap recover')"
             )
         for start, end, offset in self.bad_chunks:
             out.append(
