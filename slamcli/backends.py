@@ -12,6 +12,22 @@ from slamcli.errors import SlamcliError
 log = logging.getLogger(__name__)
 
 
+def import_cv2() -> ModuleType:
+    """Import OpenCV with its own logger limited to errors.
+
+    OpenCV prints a ``[ WARN ]`` line on stderr for every image file it cannot open; the
+    sources report missing and unreadable images themselves, counted and summarised.
+    """
+    try:
+        import cv2
+    except ImportError as exc:
+        raise SlamcliError(
+            f"OpenCV could not be loaded ({exc})", hint="install the opencv-python-headless package"
+        ) from exc
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    return cv2
+
+
 def import_open3d() -> ModuleType:
     """Import Open3D with its kernels on one thread, so results do not depend on thread timing.
 

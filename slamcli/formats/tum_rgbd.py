@@ -54,6 +54,9 @@ from slamcli.types import (
 
 log = logging.getLogger(__name__)
 
+_NAMED = 3
+"""Unreadable images named in info's problem line; ``--json`` lists them all."""
+
 GROUNDTRUTH_MAX_DT_S = 0.02
 """A frame counts as covered by ground truth when a pose lies within this many seconds."""
 
@@ -403,7 +406,14 @@ class TumRgbdSource(SourceBase):
         self._coverage(gt, details, problems)
         unreadable = self._check_files(deep, progress)
         details["unreadable"] = unreadable
-        problems.extend(f"unreadable: {u}" for u in unreadable)
+        if unreadable:
+            # details["unreadable"] (info --json) names every one; the problem line, a few.
+            more = f", and {len(unreadable) - _NAMED} more" if len(unreadable) > _NAMED else ""
+            problems.append(
+                f"{len(unreadable)} listed image(s) missing or unreadable: "
+                + "; ".join(unreadable[:_NAMED])
+                + more
+            )
         self._check_camera_size(problems)
         depth_problem = self._check_depth_scale(details)
         if depth_problem:
@@ -442,7 +452,9 @@ class TumRgbdSource(SourceBase):
 
     def _imread(self, lst: ImageList, k: int, flags: int) -> tuple[NDArray[Any] | None, str]:
         """Decode image ``k`` of ``lst``; returns ``(image, "")`` or ``(None, reason)``."""
-        import cv2
+        from slamcli.backends import import_cv2
+
+        cv2 = import_cv2()
 
         path = self.path / lst.files[k]
         img = cv2.imread(str(path), flags)
