@@ -326,8 +326,12 @@ def test_start_in_an_obstacle_or_the_inflated_zone_names_the_nearest_free_cell()
         r, c = world_to_cell(grid, (fx, fy))
         assert not cm.blocked[r, c]
         assert "--start" in (info.value.hint or "")
-    with pytest.raises(MapError, match=r"goal .* is in unknown space"):
+        # A smaller radius frees only cells that the radius blocked.
+        assert ("--robot-radius" in (info.value.hint or "")) == (why != "is in an obstacle")
+    with pytest.raises(MapError, match=r"goal .* is in unknown space") as info:
         plan(grid, (0.0, 1.8), (-9.0, -9.0))
+    assert "--allow-unknown" in (info.value.hint or "")
+    assert "--robot-radius" not in (info.value.hint or "")
 
 
 def test_no_path_reports_the_cells_reached() -> None:
@@ -336,6 +340,10 @@ def test_no_path_reports_the_cells_reached() -> None:
     grid = _grid(prob, 0.1)
     with pytest.raises(NoPathError, match=r"reached 200 cells") as info:
         plan(grid, (0.25, 1.0), (2.5, 1.0), robot_radius_m=0.0)
+    # The radius is 0 already: no hint to lower it.
+    assert "--robot-radius" not in (info.value.hint or "")
+    with pytest.raises(NoPathError, match=r"reached 200 cells") as info:
+        plan(grid, (0.25, 1.0), (2.5, 1.0), robot_radius_m=0.05)
     assert "--robot-radius" in (info.value.hint or "")
     prob[5, 10] = np.nan  # an unknown gap
     with pytest.raises(NoPathError, match="reached 200 cells") as info:

@@ -333,11 +333,15 @@ def _free_cell_at(costmap: Costmap, xy: tuple[float, float], name: str) -> tuple
         )
     if not costmap.blocked[cell]:
         return cell
+    # Only the remedies that can free this cell: a smaller radius frees only inflated cells.
+    fixes = []
     if costmap.occupied[cell]:
         why = "is in an obstacle"
     elif costmap.unknown[cell] and not costmap.allow_unknown:
         why = "is in unknown space"
+        fixes.append("pass --allow-unknown")
     else:
+        fixes.append("lower --robot-radius")
         why = (
             f"is within the robot radius ({costmap.robot_radius_m:g} m) of an obstacle "
             f"({float(costmap.distance_m[cell]):.3f} m from the nearest occupied cell)"
@@ -350,8 +354,7 @@ def _free_cell_at(costmap: Costmap, xy: tuple[float, float], name: str) -> tuple
     raise MapError(
         f"{where} {why}; the nearest free cell is centred at ({fx:.3f}, {fy:.3f}) m, "
         f"{dist:.3f} m away",
-        hint=f"move {flag} to ({fx:.2f}, {fy:.2f}), lower --robot-radius"
-        + ("" if costmap.allow_unknown else ", or pass --allow-unknown"),
+        hint=" or ".join([f"move {flag} to ({fx:.2f}, {fy:.2f})", *fixes]),
     )
 
 
@@ -375,13 +378,13 @@ def _search(
         # Cells connect exactly when they are 4-connected through free cells (see search.py).
         labels, _ = label(~blocked)
         reached = int(np.count_nonzero(labels == labels[start]))
-        hints = ["a smaller --robot-radius"]
+        hints = ["a smaller --robot-radius"] if costmap.robot_radius_m > 0 else []
         if not costmap.allow_unknown and costmap.unknown.any():
             hints.insert(0, "--allow-unknown")
         raise NoPathError(
             f"no path from cell {start} to cell {goal}: the goal is not connected to the start; "
             f"the search reached {reached} cells from the start",
-            hint=f"try {' or '.join(hints)}, or a goal in the same free region",
+            hint=f"try {' or '.join([*hints, 'a goal in the same free region'])}",
         ) from None
 
 
