@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 from slamcli.errors import InputError
 from slamcli.evaluation import ErrorStats
 from slamcli.geometry import interpolate_planar, se3_to_planar, umeyama, wrap_angle
+from slamcli.geometry.chi2 import chi2_quantile
 from slamcli.types import LandmarkMap, Trajectory
 
 F64 = NDArray[np.float64]
@@ -46,13 +47,11 @@ def nees_band(dof: int, n_runs: int = 1, confidence: float = 0.95) -> tuple[floa
 
     With ``n_runs`` Monte-Carlo runs the average of the runs' NEES is χ²(dof·n_runs)/n_runs.
     """
-    from scipy.stats import chi2
-
     if dof < 1 or n_runs < 1:
         raise ValueError(f"nees_band needs dof >= 1 and n_runs >= 1, got {dof}, {n_runs}")
     a = (1.0 - confidence) / 2.0
     k = dof * n_runs
-    return float(chi2.ppf(a, k) / n_runs), float(chi2.ppf(1.0 - a, k) / n_runs)
+    return chi2_quantile(a, k) / n_runs, chi2_quantile(1.0 - a, k) / n_runs
 
 
 @dataclass(frozen=True)

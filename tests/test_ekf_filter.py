@@ -36,8 +36,9 @@ from slamcli.ekf.filter import (
     observe_jacobians,
     relative_motion,
 )
+from slamcli.geometry.chi2 import chi2_quantile
 from slamcli.geometry.planar import se3_to_planar
-from slamcli.pipelines.ekf import EkfConfig, EkfSlam, chi2_quantile
+from slamcli.pipelines.ekf import EkfConfig, EkfSlam
 from slamcli.types import LandmarkFrame, OdometryFrame
 
 F64 = NDArray[np.float64]

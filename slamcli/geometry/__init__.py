@@ -1,6 +1,8 @@
-"""Batch rigid-body maths on ``(..., 4, 4)`` and ``(..., 3, 3)`` stacks."""
+"""Batch rigid-body maths on ``(..., 4, 4)`` and ``(..., 3, 3)`` stacks, planar (x, y, yaw)
+poses and the unicycle motion model, and the χ² quantiles of Gaussian gates."""
 
 from slamcli.geometry.align import umeyama
+from slamcli.geometry.chi2 import chi2_quantile
 from slamcli.geometry.planar import (
     compose_planar,
     integrate_unicycle,
@@ -29,6 +31,7 @@ from slamcli.geometry.se3 import (
 )
 
 __all__ = [
+    "chi2_quantile",
     "compose",
     "compose_planar",
     "integrate_unicycle",

@@ -39,6 +39,7 @@ from slamcli.ekf.association import UNMATCHED, Candidates, jcbb, nearest_neighbo
 from slamcli.ekf.filter import LandmarkEkf, arc_step, inverse_observation, relative_motion
 from slamcli.ekf.smoother import Event, Observation, Row, Step, Velocity, smooth_path
 from slamcli.errors import PipelineError
+from slamcli.geometry.chi2 import chi2_quantile
 from slamcli.geometry.planar import planar_to_se3, se3_to_planar, wrap_angle
 from slamcli.types import LandmarkFrame, LandmarkMap, OdometryFrame, SlamResult, Trajectory
 
@@ -646,15 +647,6 @@ class EkfSlam:
 @functools.lru_cache(maxsize=256)
 def _joint_gate(p: float, pairs: int) -> float:
     return chi2_quantile(p, 2 * pairs)
-
-
-def chi2_quantile(p: float, dof: int) -> float:
-    """The χ² distribution's ``p`` quantile (closed form for 2 degrees of freedom)."""
-    if dof == 2:
-        return float(-2.0 * np.log1p(-p))
-    from scipy.special import gammaincinv
-
-    return float(2.0 * gammaincinv(0.5 * dof, p))
 
 
 def _relative(a: F64, b: F64) -> F64:
