@@ -33,10 +33,18 @@ SLAM), scale (evo --correct_scale alone), none.
 
 Examples:
 
-  slamcli eval groundtruth.txt orb.txt
-  slamcli eval gt.txt mono_kf.txt --align sim3 --rpe-delta 1
-  slamcli eval data.csv vio.txt --format euroc --json
-  slamcli eval 00_gt.txt 00_orb.txt --format kitti --rpe-delta 100 --delta-unit m --plot ate.png
+[bold]slamcli eval ../shared/data/trajectories/freiburg1_xyz-groundtruth.txt \
+../shared/data/trajectories/freiburg1_xyz-rgbdslam.txt[/]
+
+[bold]slamcli eval ../shared/data/trajectories/fr2_desk_groundtruth.txt \
+../shared/data/trajectories/fr2_desk_ORB_kf_mono.txt --align sim3 --rpe-delta 1[/]
+
+[bold]slamcli eval ../shared/data/trajectories/V102_groundtruth.csv \
+../shared/data/trajectories/V102.txt --format euroc --json[/]
+
+[bold]slamcli eval ../shared/data/trajectories/KITTI_00_gt.txt \
+../shared/data/trajectories/KITTI_00_ORB.txt --format kitti --rpe-delta 100 --delta-unit m \
+--plot ate.png[/]
 
 Exit codes: 0 ok; 1 unreadable or malformed file, too few matched poses, bad option value.
 """

@@ -34,9 +34,9 @@ Exit codes: 0 ok; 1 a missing input, a run folder without mesh.ply, an unknown f
 
 Examples:
 
-[bold]slamcli mesh export runs/room --format glb[/]
+[bold]slamcli mesh export runs/room_dense --format glb[/] (after the 'slamcli run dense' example)
 
-[bold]slamcli mesh export runs/room --out room.ply --min-component 200 --simplify 50000[/]
+[bold]slamcli mesh export runs/room_dense --out room.ply --min-component 200 --simplify 20000[/]
 
 [bold]slamcli mesh export room.ply --format glb --crop=-2,-2,-0.5,2,2,2.5[/]
 """

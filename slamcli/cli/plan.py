@@ -44,9 +44,11 @@ option, or --out not empty without --force.
 
 Examples:
 
-[bold]slamcli plan turtlebot3_world.yaml --start -2,-0.5 --goal 2,0.5 --out plan[/]
+[bold]slamcli plan ../shared/data/maps/turtlebot3_world.yaml --start -2,-0.5 --goal 2,0.5 \
+--out plan[/]
 
-[bold]slamcli plan runs/lab --start 0,0 --goal 4,2 --robot-radius 0.3 --clearance-weight 1[/]
+[bold]slamcli plan runs/landmarks --start -6,-5.9 --goal 4,5.9 --robot-radius 0.3 \
+--clearance-weight 1 --out runs/landmarks_plan[/] (after the 'slamcli run ekf' example)
 """
 
 

@@ -58,7 +58,7 @@ def rgbd(
     accelerometer.txt and camera.yaml. The camera flies a closed loop at handheld speeds
     (fx = fy = 0.8 x width); sequences of 18 s (540 frames) or more turn once around the room.
 
-    Example: [bold]slamcli synth rgbd data/room --frames 90 --size 320x240 --noise[/]
+    Example: [bold]slamcli synth rgbd runs/synth_room --frames 4 --size 160x120 --noise[/]
     """
     from slamcli.synth.rgbd import render_rgbd_sequence
 
@@ -111,7 +111,7 @@ def landmarks(
     noise and a constant scale error; observations are range-bearing within 6 m and a 180-degree
     field of view.
 
-    Example: [bold]slamcli synth landmarks data/world --landmarks 60 --duration 180 --seed 3[/]
+    Example: [bold]slamcli synth landmarks runs/world --landmarks 60 --duration 60 --seed 3[/]
     """
     from slamcli.synth.landmarks import generate_landmark_world
 
