@@ -10,22 +10,7 @@ import typer
 
 from slamcli.cli import render
 from slamcli.cli.common import boundary
-from slamcli.cli.source_options import (
-    DEFAULTS,
-    CameraOpt,
-    Cx,
-    Cy,
-    DepthFactor,
-    DtOffset,
-    Fx,
-    Fy,
-    GtFrame,
-    GtTopic,
-    MaxDt,
-    SourceOptions,
-    Strict,
-    Undistort,
-)
+from slamcli.cli.source_options import SourceOptions, source_options
 from slamcli.errors import DataLossError
 
 if TYPE_CHECKING:
@@ -92,11 +77,30 @@ class DepthEncoding(str, Enum):
     metres = "32FC1"
 
 
+_SOURCE_OPTIONS = (
+    "max_dt",
+    "dt_offset",
+    "depth_factor",
+    "camera",
+    "fx",
+    "fy",
+    "cx",
+    "cy",
+    "undistort",
+    "strict",
+    "gt_topic",
+    "gt_frame",
+)
+"""The source options convert takes: those of RGB-D folders, and the pose topic or tf frame
+of a trajectory export."""
+
+
 def register(app: typer.Typer) -> None:
     app.command("convert", help=HELP, rich_help_panel="Export")(convert)
 
 
 @boundary
+@source_options(_SOURCE_OPTIONS)
 def convert(
     input: Annotated[
         Path,
@@ -144,24 +148,14 @@ def convert(
         ),
     ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite OUT if it exists.")] = False,
-    max_dt: MaxDt = DEFAULTS.max_dt,
-    dt_offset: DtOffset = DEFAULTS.dt_offset,
-    depth_factor: DepthFactor = None,
-    camera: CameraOpt = None,
-    fx: Fx = None,
-    fy: Fy = None,
-    cx: Cx = None,
-    cy: Cy = None,
-    undistort: Undistort = False,
-    strict: Strict = False,
-    gt_topic: GtTopic = None,
-    gt_frame: GtFrame = None,
+    *,
+    source: SourceOptions,
 ) -> None:
     from slamcli.atomic import check_writable_file
     from slamcli.convert import convert as convert_input
 
     check_writable_file(out)
-    options = SourceOptions.pick(locals()).open_kwargs()
+    options = source.open_kwargs()
     with render.progress("converting frames") as progress:
         result = convert_input(
             input,

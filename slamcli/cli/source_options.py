@@ -172,11 +172,6 @@ class SourceOptions:
     gt_frame: str | None = None
     landmark_topic: str | None = None
 
-    @classmethod
-    def pick(cls, params: dict[str, Any]) -> SourceOptions:
-        """The source options among a command's parameters (pass ``locals()``)."""
-        return cls(**{f.name: params[f.name] for f in fields(cls) if f.name in params})
-
     def open_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for :func:`slamcli.formats.open_source`.
 
