@@ -43,6 +43,7 @@ from slamcli.formats.camera import DEFAULT_DEPTH_FACTOR, resolve_camera
 from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.text import iter_data_lines, parse_floats, parse_stamp_ns
 from slamcli.formats.trajectory import read_trajectory
+from slamcli.geometry.camera import undistort_image
 from slamcli.types import (
     ImageFrame,
     ImuFrame,
@@ -218,16 +219,12 @@ class TumRgbdSource(SourceBase):
             round(self.max_dt * 1e9),
             round(self.dt_offset * 1e9),
         )
-        self._maps: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
         self._dfactor = np.float32(self.depth_factor)
 
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
         """A folder with ``rgb.txt`` or ``depth.txt``; :meth:`open` names whichever is missing."""
         return sniff.tum_rgbd(path)
-
-    def close(self) -> None:
-        self._maps = None
 
     def __len__(self) -> int:
         """Number of associated RGB-D frames."""
@@ -496,8 +493,7 @@ class TumRgbdSource(SourceBase):
             )
         rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB, dst=bgr)
         if self._remove_distortion:
-            mx, my = self._undistort_maps()
-            rgb = cv2.remap(rgb, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+            rgb = undistort_image(self.raw_camera, rgb)
         return cast("NDArray[np.uint8]", rgb)
 
     def _load_depth(self, k: int) -> NDArray[np.float32] | None:
@@ -509,27 +505,9 @@ class TumRgbdSource(SourceBase):
             self._unreadable(self.depth_list, k, reason)
             return None
         if self._remove_distortion:
-            mx, my = self._undistort_maps()
-            raw = cv2.remap(raw, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT)
+            raw = undistort_image(self.raw_camera, raw, nearest=True)
         # One pass from uint16 to float32 metres: no float64 intermediate, no extra copy.
         return np.divide(raw, self._dfactor, dtype=np.float32)
-
-    def _undistort_maps(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-        import cv2
-
-        maps = self._maps
-        if maps is None:
-            cam = self.raw_camera
-            k = cam.K
-            dist = np.asarray(cam.distortion, dtype=np.float64)
-            # Float maps rather than fixed-point ones, so INTER_NEAREST rounds to the nearest
-            # source pixel instead of truncating.
-            mx, my = cv2.initUndistortRectifyMap(
-                k, dist, None, k, (cam.width, cam.height), cv2.CV_32FC1
-            )
-            maps = (cast("NDArray[np.float32]", mx), cast("NDArray[np.float32]", my))
-            self._maps = maps
-        return maps
 
     def _coverage(
         self, gt: Trajectory | None, details: dict[str, Any], problems: list[str]

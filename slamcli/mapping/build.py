@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, InputError
 from slamcli.formats.run_folder import RunRecord, read_run
+from slamcli.geometry.camera import unproject
 from slamcli.mapping.floor import (
     FloorPlane,
     Up,
@@ -63,7 +64,7 @@ from slamcli.mapping.floor import (
     up_from_cameras,
 )
 from slamcli.mapping.occupancy import L_FREE, L_MAX, L_MIN, L_OCC, LogOddsGrid
-from slamcli.types import OccupancyGrid, ProgressFn, Trajectory
+from slamcli.types import OccupancyGrid, PinholeCamera, ProgressFn, Trajectory
 
 log = logging.getLogger(__name__)
 
@@ -274,7 +275,7 @@ def _depth_map(
             if pose is None:
                 without_pose += 1
                 continue
-            pts = _back_project(frame.depth_m, frame.camera.K, cfg.pixel_step, cfg.max_depth_m)
+            pts = _back_project(frame.depth_m, frame.camera, cfg.pixel_step, cfg.max_depth_m)
             cams.append(pose)
             points.append((pts @ pose[:3, :3].T + pose[:3, 3]).astype(np.float32))
     if not cams:
@@ -357,15 +358,12 @@ def _pose_at(trajectory: Trajectory, stamp_ns: int, max_dt_s: float) -> F64 | No
     return np.asarray(pose[0], dtype=np.float64)
 
 
-def _back_project(depth_m: F32, K: F64, step: int, max_depth_m: float) -> F64:
+def _back_project(depth_m: F32, camera: PinholeCamera, step: int, max_depth_m: float) -> F64:
     """(M, 3) camera-frame points of every ``step``-th pixel with a depth in (0, max]."""
     z = np.asarray(depth_m, dtype=np.float32)[::step, ::step]
     rows, cols = np.nonzero(np.isfinite(z) & (z > 0) & (z <= max_depth_m))
     d = z[rows, cols].astype(np.float64)
-    u, v = cols * step, rows * step
-    x = (u - K[0, 2]) / K[0, 0] * d
-    y = (v - K[1, 2]) / K[1, 1] * d
-    return np.stack([x, y, d], axis=1)
+    return unproject(camera, np.stack([cols * step, rows * step], axis=1), d)
 
 
 def _floor_points(run: RunRecord, points: list[F32]) -> tuple[F64, str]:

@@ -38,6 +38,7 @@ from numpy.typing import NDArray
 from slamcli.config import setting
 from slamcli.errors import ConfigError, PipelineError
 from slamcli.geometry import compose, inverse, rotation_angle
+from slamcli.geometry.camera import undistort_image, unproject
 from slamcli.types import PinholeCamera, RgbdFrame, SlamResult, Trajectory, TriangleMesh
 
 log = logging.getLogger(__name__)
@@ -308,7 +309,7 @@ class DenseSlam:
         self.config = config or DenseConfig()
         self._camera: PinholeCamera | None = None
         self._raw_camera: PinholeCamera | None = None
-        self._undistort_maps: tuple[NDArray[np.float32], NDArray[np.float32]] | None = None
+        self._undistort = False
         self._downsample = 1
         self._pnp_inliers = 0
         self._o3d: Any = None
@@ -449,17 +450,8 @@ class DenseSlam:
         if self._raw_camera is None:
             self._raw_camera = cam
             self._o3d = _open3d()
-            if cfg.undistort and cam.is_distorted:
-                mx, my = cv2.initUndistortRectifyMap(
-                    cam.K, np.array(cam.distortion), None, cam.K, (w, h), cv2.CV_32FC1
-                )
-                self._undistort_maps = (
-                    np.asarray(mx, dtype=np.float32),
-                    np.asarray(my, dtype=np.float32),
-                )
-                self._camera = cam.undistorted()
-            else:
-                self._camera = cam
+            self._undistort = cfg.undistort and cam.is_distorted
+            self._camera = cam.undistorted() if self._undistort else cam
             self._downsample = max(
                 1, min(cfg.track_downsample, 2 ** int(math.log2(max(1, w // 160))))
             )
@@ -472,17 +464,9 @@ class DenseSlam:
         assert camera is not None
         depth = np.nan_to_num(np.asarray(frame.depth_m, dtype=np.float32), nan=0.0, posinf=0.0)
         rgb = np.ascontiguousarray(frame.rgb, dtype=np.uint8)
-        if self._undistort_maps is not None:
-            mx, my = self._undistort_maps
-            rgb = np.asarray(
-                cv2.remap(rgb, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT),
-                dtype=np.uint8,
-            )
-            # Nearest sampling never blends a foreground and a background depth across an edge.
-            depth = np.asarray(
-                cv2.remap(depth, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT),
-                dtype=np.float32,
-            )
+        if self._undistort:
+            rgb = undistort_image(cam, rgb)
+            depth = undistort_image(cam, depth, nearest=True)
         depth[(depth < cfg.depth_min_m) | (depth > cfg.depth_max_m)] = 0.0
         valid_fraction = float(np.count_nonzero(depth)) / depth.size
         self._best_valid_fraction = max(self._best_valid_fraction, valid_fraction)
@@ -1071,9 +1055,7 @@ def _lift(keypoints: NDArray[np.float32], depth: NDArray[np.float32], cam: Pinho
     v = np.clip(np.rint(keypoints[:, 1]).astype(np.int64), 0, h - 1)
     z = depth[v, u].astype(np.float64)
     z[z <= 0] = np.nan
-    x = (keypoints[:, 0] - cam.cx) / cam.fx * z
-    y = (keypoints[:, 1] - cam.cy) / cam.fy * z
-    return np.stack([x, y, z], axis=1)
+    return unproject(cam, keypoints, z)
 
 
 def _match(desc_a: NDArray[np.uint8], desc_b: NDArray[np.uint8], ratio: float) -> NDArray[np.int64]:

@@ -53,6 +53,7 @@ from slamcli.errors import ConfigError
 from slamcli.formats.text import format_stamp
 from slamcli.formats.trajectory import tum_lines
 from slamcli.geometry import make_pose
+from slamcli.geometry.camera import unproject
 from slamcli.rundir import RunDir
 from slamcli.types import PinholeCamera, ProgressFn, Trajectory
 
@@ -536,15 +537,13 @@ class RgbdWorld:
     def _directions(self, world_from_cam: F64, offsets: tuple[tuple[float, float], ...]) -> F32:
         """World ray directions (K, H, W, 3) with unit z in the camera frame, per pixel offset."""
         cam = self.camera
-        u = np.arange(cam.width, dtype=np.float64)
-        v = np.arange(cam.height, dtype=np.float64)
+        uv = np.stack(
+            np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height)), axis=-1
+        )
         out = np.empty((len(offsets), cam.height, cam.width, 3), dtype=np.float32)
         rot = world_from_cam[:3, :3]
-        for k, (du, dv) in enumerate(offsets):
-            x = ((u + du - cam.cx) / cam.fx)[None, :]
-            y = ((v + dv - cam.cy) / cam.fy)[:, None]
-            d_cam = np.stack(np.broadcast_arrays(x, y, np.ones_like(x * y)), axis=-1)
-            out[k] = d_cam @ rot.T
+        for k, offset in enumerate(offsets):
+            out[k] = unproject(cam, uv + offset, 1.0) @ rot.T
         return out
 
     def _cast(self, world_from_cam: F64, dirs: F32) -> tuple[F32, NDArray[np.int32]]:
