@@ -13,12 +13,12 @@ from slamcli.cli.source_options import DEFAULTS, SourceOptions, source_options
 runner = CliRunner()
 
 
-def _app(only: tuple[str, ...] | None = None) -> tuple[typer.Typer, list[SourceOptions]]:
+def _app(without: tuple[str, ...] = ()) -> tuple[typer.Typer, list[SourceOptions]]:
     seen: list[SourceOptions] = []
     app = typer.Typer()
 
     @app.command()
-    @source_options(only)
+    @source_options(without)
     def cmd(input: Path, deep: bool = False, *, source: SourceOptions) -> None:
         seen.append(source)
 
@@ -34,7 +34,7 @@ def test_every_option_reaches_the_command() -> None:
 
 
 def test_defaults_and_a_subset() -> None:
-    app, seen = _app(("max_dt", "strict"))
+    app, seen = _app(("robot", "ignore_ids"))
     assert runner.invoke(app, ["x"]).exit_code == 0
     assert seen == [DEFAULTS]
     res = runner.invoke(app, ["x", "--robot", "2"])
@@ -43,4 +43,4 @@ def test_defaults_and_a_subset() -> None:
 
 def test_unknown_names_are_refused() -> None:
     with pytest.raises(ValueError, match="not source options: voxel"):
-        source_options(("voxel",))
+        source_options(without=("voxel",))

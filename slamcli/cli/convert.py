@@ -77,22 +77,17 @@ class DepthEncoding(str, Enum):
     metres = "32FC1"
 
 
-_SOURCE_OPTIONS = (
-    "max_dt",
-    "dt_offset",
-    "depth_factor",
-    "camera",
-    "fx",
-    "fy",
-    "cx",
-    "cy",
-    "undistort",
-    "strict",
-    "gt_topic",
-    "gt_frame",
+_NOT_FOR_CONVERT = (
+    "robot",
+    "ignore_ids",
+    "rgb_topic",
+    "depth_topic",
+    "camera_info_topic",
+    "odom_topic",
+    "landmark_topic",
 )
-"""The source options convert takes: those of RGB-D folders, and the pose topic or tf frame
-of a trajectory export."""
+"""Source options convert has no use for: it reads RGB-D and landmark folders whole, and from an
+MCAP log only the poses of --gt-topic or --gt-frame."""
 
 
 def register(app: typer.Typer) -> None:
@@ -100,7 +95,7 @@ def register(app: typer.Typer) -> None:
 
 
 @boundary
-@source_options(_SOURCE_OPTIONS)
+@source_options(without=_NOT_FOR_CONVERT)
 def convert(
     input: Annotated[
         Path,

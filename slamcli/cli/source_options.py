@@ -214,14 +214,14 @@ _OPTIONS: dict[str, Any] = {
 F = TypeVar("F", bound=Callable[..., Any])
 
 
-def source_options(only: Collection[str] | None = None) -> Callable[[F], F]:
-    """Give a command the source options (all, or the fields named in ``only``).
+def source_options(without: Collection[str] = ()) -> Callable[[F], F]:
+    """Give a command the source options (all but the fields named in ``without``).
 
     The options are appended to the command's signature, which typer reads, and the command
     is called with them collected into its ``source: SourceOptions`` parameter.
     """
-    names = [f.name for f in fields(SourceOptions) if only is None or f.name in only]
-    unknown = set(only or ()) - set(names)
+    names = [f.name for f in fields(SourceOptions) if f.name not in without]
+    unknown = set(without) - {f.name for f in fields(SourceOptions)}
     if unknown:
         raise ValueError(f"not source options: {', '.join(sorted(unknown))}")
 
