@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import inspect
+
 import cv2
 import numpy as np
 from hypothesis import given, settings
@@ -91,3 +93,13 @@ def test_undistort_image_default_keeps_k_and_interpolates_like_cv2_undistort() -
     np.testing.assert_allclose(undistort_points(FR1, [501.0, 101.0]), centre, atol=0.5)
     plain = FR1.undistorted()
     assert undistort_image(plain, smooth) is smooth
+
+
+def test_undistortion_defaults_reader_off_dense_pipeline_on() -> None:
+    """As documented in slamcli.geometry.camera: readers keep the recorded images, the dense
+    pipeline (which needs a pinhole) removes the distortion itself."""
+    from slamcli.formats.tum_rgbd import TumRgbdSource
+    from slamcli.pipelines.dense import DenseConfig
+
+    assert inspect.signature(TumRgbdSource).parameters["undistort"].default is False
+    assert DenseConfig().undistort is True

@@ -15,6 +15,14 @@ the image size, the principal point and the focal lengths a user gave, so intrin
 ones in the camera file; the price is a thin black rim where a barrel-distorted lens saw less
 than the pinhole does. It is also what :func:`undistort_points` returns by default in pixels,
 where ``cv2.undistortPoints`` without ``P`` would return normalised coordinates.
+
+**Who undistorts.** Readers hand frames over as recorded, with the camera that took them
+(``TumRgbdSource(undistort=False)``, the CLI's ``--undistort`` off): TUM advises against
+undistorting its Kinect images, whose depth was registered with the factory colour model.
+Consumers that need pinhole geometry undistort what they are given: the dense pipeline
+(``dense.undistort``, on by default) remaps distorted frames itself, so ``slamcli run dense``
+works on the true pinhole with or without ``--undistort``; with it, the reader has already
+done the remap and the pipeline has nothing left to do.
 """
 
 from __future__ import annotations
