@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 import typing
+from pathlib import Path
 
 import pytest
 
@@ -41,3 +43,14 @@ def test_cli_start_imports_no_pipeline_module() -> None:
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_run_json_says_which_alignment_scored_the_run(tmp_path: Path) -> None:
+    from slamcli.demo import default_sample
+    from slamcli.run import run_pipeline
+
+    outcome = run_pipeline(default_sample(), "odometry", tmp_path / "run", max_frames=4)
+    assert outcome.evaluation == "se3"
+    record = json.loads((tmp_path / "run" / "run.json").read_text())
+    assert record["metrics"]["alignment"] == "se3"
+    assert record["metrics"]["evaluation"]["alignment"] == "se3"
