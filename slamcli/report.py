@@ -156,6 +156,37 @@ def _running_mean(t: Any, v: Any, ax: Any, label: str) -> None:
     ax.plot(*_decimated(np.stack([tm, mean], axis=1)).T, color="k", lw=1.2, label=label)
 
 
+def _chi2_panel(
+    ax: Any,
+    t: Any,
+    values: Any,
+    band: tuple[float, float],
+    dof: int,
+    label: str,
+    title: str,
+    style: dict[str, Any],
+) -> None:
+    """A NEES or NIS panel: (N,) values at (N,) times (s) on a log axis, their running mean,
+    the 95 % χ² band and the expected value (the degrees of freedom)."""
+    import numpy as np
+
+    vals = np.clip(values, 1e-3, None)
+    ax.plot(*_decimated(np.stack([t, vals], axis=1)).T, color="tab:purple", label=label, **style)
+    _running_mean(t, values, ax, "running mean")
+    lo, hi = band
+    ax.axhspan(lo, hi, color="tab:green", alpha=0.15, label=f"95 % band ({lo:.2f}, {hi:.2f})")
+    ax.axhline(float(dof), color="k", lw=0.8, ls=":")
+    _log_y(ax)
+    ax.set_title(title)
+    ax.legend(loc="lower right", fontsize="small")
+
+
+def _empty_panel(ax: Any, text: str, title: str) -> None:
+    """A panel that says what is missing instead of an empty plot."""
+    ax.text(0.5, 0.5, text, ha="center", va="center", transform=ax.transAxes)
+    ax.set_title(title)
+
+
 def _series_time(series: Any, t0_s: float) -> Any:
     """Series stamps (s) relative to the estimate's first stamp when they share its clock."""
     t = series[:, 0]
@@ -311,32 +342,19 @@ def plot_landmark_run(
         upper.grid(alpha=0.3)
         if ev.nees is not None:
             nees = ev.nees
-            tn = (nees.stamps_ns - t0_ns) * 1e-9
-            lo, hi = nees.band
-            vals = np.clip(nees.values, 1e-3, None)
-            lower.plot(
-                *_decimated(np.stack([tn, vals], axis=1)).T,
-                color="tab:purple",
-                lw=0.7,
-                alpha=0.6,
-                label=f"NEES, mean {nees.mean:.2f}",
-            )
-            _running_mean(tn, nees.values, lower, "running mean")
-            lower.axhspan(
-                lo, hi, color="tab:green", alpha=0.15, label=f"95 % band ({lo:.2f}, {hi:.2f})"
-            )
-            lower.axhline(3.0, color="k", lw=0.8, ls=":")
-            _log_y(lower)
             verdict = "consistent" if nees.consistent else "inconsistent"
-            lower.set_title(
-                f"Pose NEES (3 DoF): {verdict}, {100 * nees.fraction_in_band:.0f} % in band"
+            _chi2_panel(
+                lower,
+                (nees.stamps_ns - t0_ns) * 1e-9,
+                nees.values,
+                nees.band,
+                3,
+                f"NEES, mean {nees.mean:.2f}",
+                f"Pose NEES (3 DoF): {verdict}, {100 * nees.fraction_in_band:.0f} % in band",
+                {"lw": 0.7, "alpha": 0.6},
             )
-            lower.legend(loc="lower right", fontsize="small")
         else:
-            lower.text(
-                0.5, 0.5, "no pose covariances", ha="center", va="center", transform=lower.transAxes
-            )
-            lower.set_title("Pose NEES")
+            _empty_panel(lower, "no pose covariances", "Pose NEES")
         lower.set_ylabel("NEES")
         lower.grid(alpha=0.3)
     else:
@@ -345,31 +363,19 @@ def plot_landmark_run(
         if nis is not None and len(nis):
             nis = np.asarray(nis, dtype=np.float64).reshape(-1, 2)
             lo, hi = nees_band(2)
-            tn = _series_time(nis, t0_s)
-            vals = np.clip(nis[:, 1], 1e-3, None)
-            upper.plot(
-                *_decimated(np.stack([tn, vals], axis=1)).T,
-                ls="",
-                marker=".",
-                ms=1.5,
-                color="tab:purple",
-                alpha=0.5,
-                label=f"NIS, mean {np.mean(nis[:, 1]):.2f}",
-            )
-            _running_mean(tn, nis[:, 1], upper, "running mean")
-            upper.axhspan(
-                lo, hi, color="tab:green", alpha=0.15, label=f"95 % band ({lo:.2f}, {hi:.2f})"
-            )
-            upper.axhline(2.0, color="k", lw=0.8, ls=":")
-            _log_y(upper)
             inside = float(np.mean((nis[:, 1] >= lo) & (nis[:, 1] <= hi)))
-            upper.set_title(f"Innovation NIS (2 DoF), {100 * inside:.0f} % in band")
-            upper.legend(loc="lower right", fontsize="small")
-        else:
-            upper.text(
-                0.5, 0.5, "no NIS series", ha="center", va="center", transform=upper.transAxes
+            _chi2_panel(
+                upper,
+                _series_time(nis, t0_s),
+                nis[:, 1],
+                (lo, hi),
+                2,
+                f"NIS, mean {np.mean(nis[:, 1]):.2f}",
+                f"Innovation NIS (2 DoF), {100 * inside:.0f} % in band",
+                {"ls": "", "marker": ".", "ms": 1.5, "alpha": 0.5},
             )
-            upper.set_title("Innovation NIS")
+        else:
+            _empty_panel(upper, "no NIS series", "Innovation NIS")
         upper.set_ylabel("NIS")
         upper.grid(alpha=0.3)
         counts = series.get("landmarks")
@@ -383,15 +389,7 @@ def plot_landmark_run(
             )
             lower.set_title(f"Landmarks in the map ({int(counts[-1, 1])} at the end)")
         else:
-            lower.text(
-                0.5,
-                0.5,
-                "no landmark count series",
-                ha="center",
-                va="center",
-                transform=lower.transAxes,
-            )
-            lower.set_title("Landmarks in the map")
+            _empty_panel(lower, "no landmark count series", "Landmarks in the map")
         lower.set_ylabel("landmarks")
         lower.grid(alpha=0.3)
     lower.set_xlabel("time since the first pose (s)")
