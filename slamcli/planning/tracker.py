@@ -31,6 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import NoPathError
+from slamcli.geometry.planar import unicycle_step
 from slamcli.planning.obstacles import DynamicObstacle, first_hit
 from slamcli.planning.trajectory import Limits, SpeedProfile
 
@@ -208,15 +209,9 @@ def simulate(
         else:
             v_cmd, omega = _pursue(profile, t - t_ref0, s_robot, x, y, theta, v, limits, cfg)
         states[-1] = (*states[-1][:5], omega)
-        # Exact unicycle motion over the step at constant (v, omega).
-        v_mean = 0.5 * (v + v_cmd)
-        if abs(omega) > 1e-9:
-            x += v_mean / omega * (math.sin(theta + omega * dt) - math.sin(theta))
-            y -= v_mean / omega * (math.cos(theta + omega * dt) - math.cos(theta))
-        else:
-            x += v_mean * dt * math.cos(theta)
-            y += v_mean * dt * math.sin(theta)
-        theta = math.atan2(math.sin(theta + omega * dt), math.cos(theta + omega * dt))
+        # Exact unicycle motion over the step at the mean speed and constant omega.
+        nx, ny, nth = unicycle_step(x, y, theta, 0.5 * (v + v_cmd), omega, dt)
+        x, y, theta = float(nx), float(ny), math.remainder(float(nth), 2.0 * math.pi)
         v = v_cmd
         t = round(t + dt, 9)
 
