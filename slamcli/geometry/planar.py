@@ -1,4 +1,5 @@
-"""Planar (SE(2)) poses as (x, y, yaw) rows, and their embedding in SE(3) about +z."""
+"""Planar (SE(2)) poses as (x, y, yaw) rows, their embedding in SE(3) about +z, and the exact
+unicycle motion of a planar robot."""
 
 from __future__ import annotations
 
