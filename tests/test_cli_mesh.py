@@ -202,4 +202,4 @@ def test_usage_errors_exit_2(run_dir: Path) -> None:
 def test_help_teaches_with_examples() -> None:
     res = runner.invoke(app, ["mesh", "export", "--help"])
     assert res.exit_code == 0
-    assert "slamcli mesh export runs/room --format glb" in res.stdout
+    assert "slamcli mesh export runs/room_dense --format glb" in res.stdout
