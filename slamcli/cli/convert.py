@@ -49,15 +49,15 @@ but some images were missing or unreadable and their frames were skipped.
 
 Examples:
 
-[bold]slamcli convert data/rgbd_dataset_freiburg1_xyz xyz.mcap --flavor ros2[/]
+[bold]slamcli convert sample_data/rgbd_room room.mcap --flavor ros2[/]
 
-[bold]slamcli convert data/room room.mcap --flavor foxglove --compress-images jpeg[/]
+[bold]slamcli convert sample_data/rgbd_room room_fg.mcap --flavor foxglove --compress-images jpeg[/]
 
 [bold]slamcli convert sample_data/landmarks landmarks.mcap[/]
 
 [bold]slamcli convert runs/demo/dense runs/demo/dense/result.mcap[/]
 
-[bold]slamcli convert robot.mcap odom.tum --gt-topic /odom[/]
+[bold]slamcli convert ../shared/data/mcap/nav2_turtlebot.mcap amcl.tum --gt-topic /amcl_pose[/]
 """
 
 
