@@ -23,7 +23,6 @@ import time
 from collections.abc import Iterator
 from importlib import metadata
 from pathlib import Path
-from types import TracebackType
 from typing import Any
 
 from slamcli.atomic import DIR_MODE, atomic_path, check_writable_folder, unwritable
@@ -212,12 +211,9 @@ class RunDir:
     def __enter__(self) -> RunDir:
         return self
 
-    def __exit__(
-        self,
-        exc_type: type[BaseException] | None,
-        exc: BaseException | None,
-        tb: TracebackType | None,
-    ) -> None:
+    def __exit__(self, exc_type: type[BaseException] | None, *_: object) -> None:
+        # The folder is committed only when the block finished; any exception, Ctrl-C
+        # included, discards the staging folder and leaves an earlier run as it was.
         if exc_type is None:
             self.commit()
         else:

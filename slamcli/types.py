@@ -196,6 +196,10 @@ class ImuFrame:
     gyro_radps: NDArray[np.float64] | None = None
 
 
+Frame = RgbdFrame | ImageFrame | OdometryFrame | LandmarkFrame | ImuFrame
+"""Frame kinds, by the name a pipeline asks for: rgbd, image, odometry, landmarks, imu."""
+
+
 @dataclass(frozen=True)
 class TriangleMesh:
     """vertices (V, 3) float64 metres, faces (F, 3) int64, vertex_colors (V, 3) uint8 or None."""

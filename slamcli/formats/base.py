@@ -11,20 +11,7 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
-from slamcli.types import (
-    ImageFrame,
-    ImuFrame,
-    LandmarkFrame,
-    LandmarkMap,
-    OdometryFrame,
-    PinholeCamera,
-    ProgressFn,
-    RgbdFrame,
-    Trajectory,
-)
-
-Frame = RgbdFrame | ImageFrame | OdometryFrame | LandmarkFrame | ImuFrame
-"""Frame kinds, by the name a pipeline asks for: rgbd, image, odometry, landmarks, imu."""
+from slamcli.types import Frame, LandmarkMap, PinholeCamera, ProgressFn, Trajectory
 
 
 @dataclass
