@@ -55,3 +55,12 @@ def test_malformed_pose_graph_names_the_line(tmp_path: Path) -> None:
     res = runner.invoke(app, ["info", str(f)])
     assert res.exit_code == 1
     assert "bad.g2o:2: EDGE_SE2 has 2 id(s) and 9 values" in res.output
+
+
+def test_unrecognised_input_hint_names_what_else_info_reads(tmp_path: Path) -> None:
+    res = runner.invoke(app, ["info", str(tmp_path)])
+    assert res.exit_code == 1
+    assert "not a recognised input" in res.stderr
+    hint = next(line for line in res.stderr.splitlines() if line.startswith("hint:"))
+    assert "known formats:" in hint and "tum" in hint
+    assert "maps" in hint and ".g2o" in hint and ".kitti" in hint

@@ -11,7 +11,7 @@ from rich.markup import escape
 from slamcli.cli import render
 from slamcli.cli.common import boundary
 from slamcli.cli.source_options import SourceOptions, source_options
-from slamcli.errors import DataLossError
+from slamcli.errors import DataLossError, UnknownFormatError
 
 if TYPE_CHECKING:
     from slamcli.formats.base import SourceInfo
@@ -88,7 +88,15 @@ def info(
         else:
             render.key_values(f"{kind}: {input}", _other_items(kind, facts))
         return
-    with open_source(input, **source.open_kwargs()) as src:
+    try:
+        opened = open_source(input, **source.open_kwargs())
+    except UnknownFormatError as exc:
+        exc.hint = (
+            f"{exc.hint}; info also describes maps (.yaml, .npz, a folder with map.yaml), "
+            f"trajectory files ({', '.join(_TRAJECTORY_SUFFIXES)}) and g2o pose graphs (.g2o)"
+        )
+        raise
+    with opened as src:
         if deep:
             with render.progress("decoding images") as progress:
                 result = src.info(deep=True, progress=progress)
