@@ -306,3 +306,21 @@ def test_a_run_that_names_no_pipeline(tmp_path: Path) -> None:
     (run / "run.json").write_text(json.dumps({"inputs": [{"path": str(ROOM)}]}))
     with pytest.raises(InputError, match="does not say which pipeline"):
         build_map(run)
+
+
+def test_depth_of_a_distorted_camera_is_lifted_along_the_true_rays() -> None:
+    """fr1 frames read without --undistort keep their lens distortion; OpenCV's forward model
+    must put every lifted point back on the raw pixel it came from."""
+    import cv2
+
+    from slamcli.formats.camera import PRESETS
+    from slamcli.mapping.build import _back_project
+
+    cam = PRESETS["fr1"]
+    depth = np.full((cam.height, cam.width), 2.0, dtype=np.float32)
+    pts = _back_project(depth, cam, 40, 5.0)
+    assert pts.shape == (12 * 16, 3) and np.all(pts[:, 2] == 2.0)
+    raw, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), cam.K, np.asarray(cam.distortion))
+    v, u = np.mgrid[0 : cam.height : 40, 0 : cam.width : 40]
+    grid = np.column_stack([u.ravel(), v.ravel()])
+    np.testing.assert_allclose(raw.reshape(-1, 2), grid, atol=1e-6)

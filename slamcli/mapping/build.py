@@ -55,7 +55,7 @@ from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, InputError
 from slamcli.formats.run_folder import RunRecord, read_run
-from slamcli.geometry.camera import unproject
+from slamcli.geometry.camera import undistort_points, unproject
 from slamcli.mapping.floor import (
     FloorPlane,
     Up,
@@ -359,11 +359,16 @@ def _pose_at(trajectory: Trajectory, stamp_ns: int, max_dt_s: float) -> F64 | No
 
 
 def _back_project(depth_m: F32, camera: PinholeCamera, step: int, max_depth_m: float) -> F64:
-    """(M, 3) camera-frame points of every ``step``-th pixel with a depth in (0, max]."""
+    """(M, 3) camera-frame points of every ``step``-th pixel with a depth in (0, max].
+
+    A frame from a distorted camera (read without ``--undistort``) keeps its lens distortion:
+    each pixel is undistorted before it is lifted, so the points follow the true rays.
+    """
     z = np.asarray(depth_m, dtype=np.float32)[::step, ::step]
     rows, cols = np.nonzero(np.isfinite(z) & (z > 0) & (z <= max_depth_m))
     d = z[rows, cols].astype(np.float64)
-    return unproject(camera, np.stack([cols * step, rows * step], axis=1), d)
+    pixels = undistort_points(camera, np.stack([cols * step, rows * step], axis=1))
+    return unproject(camera, pixels, d)
 
 
 def _floor_points(run: RunRecord, points: list[F32]) -> tuple[F64, str]:
