@@ -62,12 +62,7 @@ def plot_evaluation(
     err.set_title("Absolute trajectory error")
     err.legend(loc="upper right", fontsize="small")
     err.grid(alpha=0.3)
-    try:
-        with atomic_path(path) as tmp:
-            fig.savefig(tmp, format="png", dpi=100)
-    except OSError as exc:
-        raise ExportError(f"{path}: cannot write the plot ({exc.strerror})") from exc
-    return Path(path)
+    return save_png(fig, path)
 
 
 def _mesh_view(ax: Any, mesh: TriangleMesh, result: EvalResult) -> None:
@@ -274,8 +269,7 @@ def plot_landmark_run(
                 zorder=4,
             )
         top.scatter(
-            lxy[:, 0],
-            lxy[:, 1],
+            *lxy.T,
             s=9,
             c="tab:green",
             marker="+",
@@ -286,8 +280,7 @@ def plot_landmark_run(
     if true_landmarks is not None and len(true_landmarks):
         txy = np.asarray(true_landmarks.xy, dtype=np.float64).reshape(-1, 2)
         top.scatter(
-            txy[:, 0],
-            txy[:, 1],
+            *txy.T,
             s=20,
             marker="x",
             c="tab:red",
@@ -395,6 +388,11 @@ def plot_landmark_run(
     lower.set_xlabel("time since the first pose (s)")
     if title:
         fig.suptitle(title)
+    return save_png(fig, path)
+
+
+def save_png(fig: Any, path: str | Path) -> Path:
+    """Write a matplotlib figure as PNG atomically; a failed write is an ExportError."""
     try:
         with atomic_path(path) as tmp:
             fig.savefig(tmp, format="png", dpi=100)
