@@ -270,34 +270,46 @@ class RunDir:
         """
         if self.committed:
             return self.path
-        aside: Path | None = None
-        try:
-            target = self._target
-            if target.exists():
-                aside = Path(
-                    tempfile.mkdtemp(prefix=f".{target.name}.old-{os.getpid()}-", dir=target.parent)
-                )
-                target.replace(aside)
+        # Ctrl-C during the swap is held until the folder is in place and recorded as such,
+        # so it can neither split the swap nor strand the set-aside old folder.
+        with _interrupts_deferred():
             try:
-                self.staging.replace(target)
+                aside = self._swap_in()
+            except OSError as exc:
+                self.abort()
+                raise unwritable(
+                    self.path, exc, "cannot put the finished output folder in place"
+                ) from exc
             except BaseException:
-                if aside is not None and not target.exists():
-                    aside.replace(target)
-                    aside = None
+                self.abort()
                 raise
-        except OSError as exc:
-            self.abort()
-            raise unwritable(
-                self.path, exc, "cannot put the finished output folder in place"
-            ) from exc
-        except BaseException:
-            self.abort()
-            raise
-        self.committed = True
-        _LIVE_STAGING.discard(self.staging)
-        if aside is not None:
-            shutil.rmtree(aside, ignore_errors=True)
+            self.committed = True
+            _LIVE_STAGING.discard(self.staging)
+            if aside is not None:
+                shutil.rmtree(aside, ignore_errors=True)
         return self.path
+
+    def _swap_in(self) -> Path | None:
+        """Rename the staging folder onto the target, an existing target aside first; returns
+        the set-aside folder (to delete) or None. On failure the target is as it was."""
+        target = self._target
+        aside: Path | None = None
+        if target.exists():
+            aside = Path(
+                tempfile.mkdtemp(prefix=f".{target.name}.old-{os.getpid()}-", dir=target.parent)
+            )
+            try:
+                target.replace(aside)
+            except BaseException:
+                aside.rmdir()
+                raise
+        try:
+            self.staging.replace(target)
+        except BaseException:
+            if aside is not None:
+                aside.replace(target)
+            raise
+        return aside
 
     def abort(self) -> None:
         """Remove the staging folder; ``path`` keeps whatever it held before the run."""
@@ -359,18 +371,27 @@ def _remove_live_staging() -> None:
 
 @contextlib.contextmanager
 def _interrupts_deferred() -> Iterator[None]:
-    """Hold SIGINT (delivered when the block ends) where POSIX allows it, in the main thread."""
+    """Hold Ctrl-C until the block ends, then deliver it as the previous handler would.
+
+    A Python-level handler, not a signal mask: the kernel may hand SIGINT to any thread
+    (OpenBLAS and Open3D start their own), and only the Python handler is sure to see it.
+    Python runs signal handlers in the main thread only, so elsewhere the block runs as is.
+    """
     import threading
 
-    mask = getattr(signal, "pthread_sigmask", None)
-    if mask is None or threading.current_thread() is not threading.main_thread():
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    mask(signal.SIG_BLOCK, {signal.SIGINT})
+    received: list[int] = []
+    previous = signal.signal(signal.SIGINT, lambda signum, _frame: received.append(signum))
     try:
         yield
     finally:
-        mask(signal.SIG_UNBLOCK, {signal.SIGINT})
+        signal.signal(signal.SIGINT, previous)
+        if received and callable(previous):
+            previous(signal.SIGINT, None)
+        elif received and previous == signal.SIG_DFL:
+            raise KeyboardInterrupt
 
 
 _STALE = re.compile(r"^\.(?P<name>.+)\.(?P<kind>staging|old)-(?P<pid>\d+)-[^/]*$")
