@@ -33,7 +33,10 @@ def import_open3d() -> ModuleType:
 
     Open3D's parallel reductions (RGB-D odometry, ICP) add partial sums in an order set by
     thread scheduling, and its iterative solvers grow those last-bit differences into
-    millimetres of trajectory. Its thread pools size themselves from the CPU affinity when the
+    millimetres of trajectory. Builds that have ``utility.set_max_threads`` (0.20 and later)
+    are limited to one thread explicitly: their TBB pool would otherwise size itself from
+    whatever CPU affinity the process has when TBB first starts, which another library using
+    TBB may already have done. Older builds size their pools from the CPU affinity when the
     library loads, so the process is pinned to one CPU while Open3D loads and released right
     after: Open3D's kernels run on one core and everything else keeps every core.
     """
@@ -54,6 +57,8 @@ def import_open3d() -> ModuleType:
     finally:
         if pinned is not None:
             os.sched_setaffinity(0, pinned)
+    if hasattr(open3d.utility, "set_max_threads"):
+        open3d.utility.set_max_threads(1)
     # Open3D's own warnings (e.g. about its ray-cast range maps) go to the console directly and
     # say nothing a user can act on; slamcli reports what matters itself.
     open3d.utility.set_verbosity_level(open3d.utility.VerbosityLevel.Error)

@@ -39,6 +39,7 @@ from slamcli.config import setting
 from slamcli.errors import ConfigError, PipelineError
 from slamcli.geometry import compose, inverse, rotation_angle
 from slamcli.geometry.camera import undistort_image, unproject
+from slamcli.pipelines.rgbd_odometry import rgbd_odometry_multi_scale
 from slamcli.types import PinholeCamera, RgbdFrame, SlamResult, Trajectory, TriangleMesh
 
 log = logging.getLogger(__name__)
@@ -721,7 +722,8 @@ class DenseSlam:
         odo = self._o3d.t.pipelines.odometry
         cfg = self.config
         try:
-            result = odo.rgbd_odometry_multi_scale(
+            result = rgbd_odometry_multi_scale(
+                self._o3d,
                 source,
                 target,
                 self._small_intrinsics(),
@@ -793,7 +795,8 @@ class DenseSlam:
         odo = self._o3d.t.pipelines.odometry
         assert self._camera is not None
         try:
-            result = odo.rgbd_odometry_multi_scale(
+            result = rgbd_odometry_multi_scale(
+                self._o3d,
                 self._full_image(kf.frame),
                 self._full_image(old.frame),
                 self._o3d.core.Tensor(self._camera.K),

@@ -110,6 +110,7 @@ class RgbdOdometry:
     def _track(self, current: Any) -> NDArray[np.float64]:
         """Pose of the current camera in the previous camera's frame."""
         from slamcli.backends import import_open3d
+        from slamcli.pipelines.rgbd_odometry import rgbd_odometry_multi_scale
 
         o3d = import_open3d()
 
@@ -124,7 +125,8 @@ class RgbdOdometry:
         # Open3D estimates source_to_target; with source = current and target = previous that
         # is prev_from_cur, the relative motion we chain.
         try:
-            result = odo.rgbd_odometry_multi_scale(
+            result = rgbd_odometry_multi_scale(
+                o3d,
                 rgbd_cur,
                 rgbd_prev,
                 intrinsics,
