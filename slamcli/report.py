@@ -269,7 +269,8 @@ def plot_landmark_run(
                 zorder=4,
             )
         top.scatter(
-            *lxy.T,
+            lxy[:, 0],
+            lxy[:, 1],
             s=9,
             c="tab:green",
             marker="+",
@@ -280,7 +281,8 @@ def plot_landmark_run(
     if true_landmarks is not None and len(true_landmarks):
         txy = np.asarray(true_landmarks.xy, dtype=np.float64).reshape(-1, 2)
         top.scatter(
-            *txy.T,
+            txy[:, 0],
+            txy[:, 1],
             s=20,
             marker="x",
             c="tab:red",
