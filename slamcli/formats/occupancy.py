@@ -74,6 +74,7 @@ from slamcli.errors import (
     MapError,
     UnknownFormatError,
 )
+from slamcli.formats.images import decode_image, size_problem
 from slamcli.types import OccupancyGrid
 
 log = logging.getLogger(__name__)
@@ -359,17 +360,18 @@ def _parse_p5_header(path: Path, data: bytes) -> tuple[int, int, int, int]:
     width, height, maxval = fields
     if width <= 0 or height <= 0 or not 0 < maxval < 65536:
         raise FormatError(path, f"PGM header has a bad size or maxval: {width} {height} {maxval}")
+    problem = size_problem(width, height)
+    if problem:
+        raise FormatError(path, f"map image {problem}")
     return width, height, maxval, i + 1
 
 
 def _decode_with_opencv(
     path: Path, data: bytes
 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
-    import cv2
-
-    img = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if img is None or img.size == 0:
-        raise FormatError(path, "cannot be decoded as an image")
+    img, reason = decode_image(data)
+    if img is None:
+        raise FormatError(path, f"map image {reason}")
     if img.dtype == np.uint8:
         q = img.astype(np.float64) * 257.0
     elif img.dtype == np.uint16:

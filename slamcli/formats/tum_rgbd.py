@@ -40,6 +40,7 @@ from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
 from slamcli.formats.camera import DEFAULT_DEPTH_FACTOR, resolve_camera
+from slamcli.formats.images import decode_image
 from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.text import iter_data_lines, parse_floats, parse_stamp_ns
 from slamcli.formats.trajectory import read_trajectory
@@ -447,16 +448,26 @@ class TumRgbdSource(SourceBase):
         self.stats.skipped += 1
         self.stats.skipped_names.append(name)
 
-    def _imread(self, lst: ImageList, k: int, flags: int) -> tuple[NDArray[Any] | None, str]:
-        """Decode image ``k`` of ``lst``; returns ``(image, "")`` or ``(None, reason)``."""
-        from slamcli.backends import import_cv2
+    def _imread(
+        self, lst: ImageList, k: int, flags: int, expect: tuple[int, int] | None = None
+    ) -> tuple[NDArray[Any] | None, str]:
+        """Decode image ``k`` of ``lst``; returns ``(image, "")`` or ``(None, reason)``.
 
-        cv2 = import_cv2()
-
+        The size in the file's header is checked against ``expect`` (width, height) and
+        :data:`~slamcli.formats.images.MAX_IMAGE_PIXELS` before anything is decoded.
+        """
         path = self.path / lst.files[k]
-        img = cv2.imread(str(path), flags)
+        try:
+            data = path.read_bytes()
+        except FileNotFoundError:
+            return None, "does not exist"
+        except OSError as exc:
+            if not path.is_file():
+                return None, "does not exist"
+            return None, f"cannot be read ({exc.strerror})"
+        img, reason = decode_image(data, flags, expect=expect)
         if img is None:
-            return None, "does not exist" if not path.is_file() else "cannot be decoded as an image"
+            return None, reason
         if lst is self.depth_list and (img.dtype != np.uint16 or img.ndim != 2):
             channels = 1 if img.ndim == 2 else img.shape[2]
             return None, (
@@ -500,7 +511,8 @@ class TumRgbdSource(SourceBase):
         """Depth image ``k`` as (H, W) float32 metres (0 = no reading), or None if unusable."""
         import cv2
 
-        raw, reason = self._imread(self.depth_list, k, cv2.IMREAD_UNCHANGED)
+        size = (self.raw_camera.width, self.raw_camera.height)
+        raw, reason = self._imread(self.depth_list, k, cv2.IMREAD_UNCHANGED, expect=size)
         if raw is None:
             self._unreadable(self.depth_list, k, reason)
             return None

@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.formats.images import decode_image, size_problem
 from slamcli.formats.mcap.decode import DecodeError, normalize_ros_type
 from slamcli.formats.mcap.observations import SCHEMA_NAME as LANDMARK_SCHEMA_NAME
 from slamcli.formats.mcap.observations import landmark_frame
@@ -167,8 +168,9 @@ def decode_raw_image(
     pixel = dtype.itemsize * channels
     row = width * pixel
     step = int(step) or row
-    if width <= 0 or height <= 0:
-        raise DecodeError(f"channel {topic}: {encoding} image has size {width}x{height}")
+    problem = size_problem(width, height)
+    if problem:
+        raise DecodeError(f"channel {topic}: {encoding} image {problem}")
     if step < row:
         raise DecodeError(
             f"channel {topic}: {encoding} image row step {step} is smaller than width {width} x "
@@ -229,9 +231,9 @@ def decode_compressed_image(topic: str, fmt: str, data: Any) -> tuple[str, NDArr
     original = text.split(";", 1)[0].strip() if ";" in text else ""
     # "rgb8; jpeg compressed bgr8": the channel order the encoder was given is the last word.
     packed = text.rsplit("compressed", 1)[1].strip() if "compressed" in text else ""
-    image = cv2.imdecode(np.frombuffer(_bytes(data), dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    image, reason = decode_image(_bytes(data))
     if image is None:
-        raise DecodeError(f"channel {topic}: cannot decode the {fmt!r} compressed image")
+        raise DecodeError(f"channel {topic}: the {fmt!r} compressed image {reason}")
     if image.ndim == 2:
         if image.dtype == np.uint8:
             return "mono", np.ascontiguousarray(image)
@@ -254,7 +256,6 @@ def decode_compressed_image(topic: str, fmt: str, data: Any) -> tuple[str, NDArr
 
 def _decode_compressed_depth(topic: str, fmt: str, data: Any) -> NDArray[np.float32]:
     """compressed_depth_image_transport payload -> (H, W) float32 metres, 0 = no reading."""
-    import cv2
 
     raw = bytes(_bytes(data))
     original = fmt.split(";", 1)[0].strip().lower()
@@ -271,8 +272,10 @@ def _decode_compressed_depth(topic: str, fmt: str, data: Any) -> NDArray[np.floa
             raise DecodeError(f"channel {topic}: compressedDepth payload is only {len(raw)} bytes")
         _, quant_a, quant_b = _COMPRESSED_DEPTH_HEADER.unpack_from(raw)
         png = raw[_COMPRESSED_DEPTH_HEADER.size :]
-    image = cv2.imdecode(np.frombuffer(png, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
-    if image is None or image.ndim != 2 or image.dtype != np.uint16:
+    image, reason = decode_image(png)
+    if image is None:
+        raise DecodeError(f"channel {topic}: compressedDepth payload of {fmt!r} {reason}")
+    if image.ndim != 2 or image.dtype != np.uint16:
         raise DecodeError(
             f"channel {topic}: compressedDepth payload of {fmt!r} is not a single-channel "
             "16-bit PNG"

@@ -1,0 +1,174 @@
+"""Decoding images from files and message payloads with a size limit checked first.
+
+An image file states its size in a header of a few bytes, and a decoder allocates that many
+pixels before it reads any pixel data: a 3 MB PNG can declare 40000x40000 pixels (3.2 GB as
+16-bit depth). :func:`decode_image` reads the size from the header (PNG, JPEG, PNM, BMP, WebP)
+and refuses an image larger than :data:`MAX_IMAGE_PIXELS`, or of another size than the caller
+expects, before OpenCV allocates anything. OpenCV's own refusals differ by version (4.x returns
+None, 5.x raises ``cv2.error``); both come back here as a reason, never as an exception.
+"""
+
+from __future__ import annotations
+
+import struct
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+MAX_IMAGE_PIXELS = 50_000_000
+"""Largest image (width x height) slamcli decodes: 50 megapixels, far above any camera frame
+or occupancy map it works with, and small enough that decoding stays well under a gigabyte."""
+
+_PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+# JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic); C4, C8 and CC are not.
+_JPEG_SOF = {0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF}
+
+
+def image_size(data: bytes) -> tuple[int, int] | None:
+    """(width, height) from an image header, or None when the format is not one parsed here.
+
+    Raises:
+        ValueError: the header is one of the known formats but is cut short or malformed.
+    """
+    head = data[:32]
+    if head.startswith(_PNG_MAGIC):
+        if len(head) < 24 or head[12:16] != b"IHDR":
+            raise ValueError("PNG header is truncated or has no IHDR chunk first")
+        width, height = struct.unpack(">II", head[16:24])
+        return int(width), int(height)
+    if head.startswith(b"\xff\xd8"):
+        return _jpeg_size(data)
+    if len(head) >= 2 and head[:1] == b"P" and head[1:2] in b"123456":
+        return _pnm_size(data[:4096])
+    if head.startswith(b"BM"):
+        if len(head) < 26:
+            raise ValueError("BMP header is truncated")
+        width, height = struct.unpack("<ii", head[18:26])
+        return abs(width), abs(height)
+    if head.startswith(b"RIFF") and head[8:12] == b"WEBP":
+        return _webp_size(head)
+    return None
+
+
+def _jpeg_size(data: bytes) -> tuple[int, int]:
+    i = 2
+    while i + 4 <= len(data):
+        if data[i] != 0xFF:
+            # libjpeg skips stray bytes between segments, so the search for a marker does too.
+            i += 1
+            continue
+        marker = data[i + 1]
+        if marker == 0xFF:
+            i += 1
+            continue
+        if marker in (0x01, 0xD8) or 0xD0 <= marker <= 0xD7:
+            i += 2
+            continue
+        (length,) = struct.unpack(">H", data[i + 2 : i + 4])
+        if marker in _JPEG_SOF:
+            if i + 9 > len(data):
+                break
+            height, width = struct.unpack(">HH", data[i + 5 : i + 9])
+            return int(width), int(height)
+        if marker == 0xDA or length < 2:
+            break
+        i += 2 + length
+    raise ValueError("JPEG has no frame header (SOF) before its image data")
+
+
+def _pnm_size(head: bytes) -> tuple[int, int]:
+    fields: list[int] = []
+    i = 2
+    while len(fields) < 2:
+        if i >= len(head):
+            raise ValueError("PNM header is truncated")
+        ch = head[i : i + 1]
+        if ch == b"#":
+            end = head.find(b"\n", i)
+            if end < 0:
+                raise ValueError("PNM header is truncated")
+            i = end + 1
+        elif ch.isspace():
+            i += 1
+        else:
+            j = i
+            while j < len(head) and head[j : j + 1].isdigit():
+                j += 1
+            if j == i or j - i > 12:
+                raise ValueError(f"PNM header has a bad number at byte {i}")
+            fields.append(int(head[i:j]))
+            i = j
+    return fields[0], fields[1]
+
+
+def _webp_size(head: bytes) -> tuple[int, int]:
+    chunk = head[12:16]
+    if chunk == b"VP8X" and len(head) >= 30:
+        return 1 + int.from_bytes(head[24:27], "little"), 1 + int.from_bytes(head[27:30], "little")
+    if chunk == b"VP8L" and len(head) >= 25:
+        bits = int.from_bytes(head[21:25], "little")
+        return 1 + (bits & 0x3FFF), 1 + ((bits >> 14) & 0x3FFF)
+    if chunk == b"VP8 " and len(head) >= 30:
+        width, height = struct.unpack("<HH", head[26:30])
+        return width & 0x3FFF, height & 0x3FFF
+    raise ValueError("WebP header is truncated or of an unknown kind")
+
+
+def size_problem(
+    width: int, height: int, expect: tuple[int, int] | None = None, limit: int = MAX_IMAGE_PIXELS
+) -> str:
+    """Why an image of this size is refused ("" if it is fine); ``expect`` is (width, height)."""
+    if width <= 0 or height <= 0:
+        return f"declares {width}x{height} pixels"
+    if width * height > limit:
+        return (
+            f"declares {width}x{height} pixels, more than the limit of {limit / 1e6:g} megapixels"
+        )
+    if expect is not None and (width, height) != tuple(expect):
+        return f"is {width}x{height}, the camera is {expect[0]}x{expect[1]}"
+    return ""
+
+
+def decode_image(
+    data: bytes | NDArray[np.uint8],
+    flags: int | None = None,
+    *,
+    expect: tuple[int, int] | None = None,
+    limit: int = MAX_IMAGE_PIXELS,
+) -> tuple[NDArray[Any] | None, str]:
+    """Decode an encoded image: ``(image, "")``, or ``(None, reason)`` if it is refused.
+
+    Args:
+        data: the encoded bytes (PNG, JPEG, PNM, BMP, WebP, or anything else OpenCV reads).
+        flags: ``cv2.IMREAD_*`` flags; default ``IMREAD_UNCHANGED``.
+        expect: (width, height) the image must have, checked from the header before decoding.
+        limit: largest width x height decoded.
+    """
+    from slamcli.backends import import_cv2
+
+    cv2 = import_cv2()
+    buf = np.frombuffer(data, dtype=np.uint8)
+    if buf.size == 0:
+        return None, "is empty"
+    try:
+        size = image_size(data if isinstance(data, bytes) else buf.tobytes())
+    except ValueError:
+        # A decoder refuses these headers too; the reason is worded as for any undecodable image.
+        return None, "cannot be decoded as an image"
+    if size is not None:
+        problem = size_problem(size[0], size[1], expect, limit)
+        if problem:
+            return None, problem
+    try:
+        img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED if flags is None else flags)
+    except cv2.error as exc:
+        detail = str(exc).strip().splitlines()[-1] if str(exc).strip() else "OpenCV error"
+        return None, f"cannot be decoded as an image ({detail})"
+    if img is None or img.size == 0:
+        return None, "cannot be decoded as an image"
+    h, w = img.shape[:2]
+    problem = size_problem(w, h, expect, limit)
+    if problem:
+        return None, problem
+    return img, ""

@@ -1,0 +1,225 @@
+"""Images that declare an enormous size are refused from their header, before decoding.
+
+A PNG of a few bytes can declare 40000x40000 pixels; OpenCV 5 raises on it, OpenCV 4 returns
+None, and a decoder without a limit would allocate gigabytes. Each test runs the CLI as a
+subprocess and measures its wall time and peak memory.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import subprocess
+import sys
+import time
+import zlib
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from slamcli.errors import FormatError
+from slamcli.formats.images import MAX_IMAGE_PIXELS, decode_image, image_size
+from slamcli.formats.occupancy import read_map_yaml
+
+ROOM = Path(__file__).resolve().parents[1] / "sample_data" / "rgbd_room"
+HUGE = 40000
+MAX_SECONDS = 10.0
+MAX_RSS_MB = 500.0
+
+
+def _lying_png(data: bytes, width: int, height: int) -> bytes:
+    """``data`` (a PNG) with its IHDR width and height replaced and the chunk CRC fixed."""
+    ihdr = bytearray(data[12:29])  # type + 13 bytes of fields
+    ihdr[4:12] = struct.pack(">II", width, height)
+    crc = struct.pack(">I", zlib.crc32(bytes(ihdr)) & 0xFFFFFFFF)
+    return data[:12] + bytes(ihdr) + crc + data[33:]
+
+
+def _png(image: np.ndarray) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".png", image)
+    assert ok
+    return buf.tobytes()
+
+
+def _run(args: list[str], cwd: Path) -> tuple[int, str, float, float]:
+    """(exit code, stdout and stderr, seconds, peak RSS in MB) of ``slamcli ARGS``."""
+    env = {**os.environ, "COLUMNS": "200", "NO_COLOR": "1"}
+    start = time.monotonic()
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "slamcli", *args],
+        cwd=cwd,
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+    )
+    assert proc.stdout is not None
+    err = proc.stdout.read().decode()
+    _, status, usage = os.wait4(proc.pid, 0)
+    proc.returncode = os.waitstatus_to_exitcode(status)
+    return proc.returncode, err, time.monotonic() - start, usage.ru_maxrss / 1024.0
+
+
+def _room_with(tmp_path: Path, replace: dict[str, bytes]) -> Path:
+    """A copy of the sample room: symlinks, except for the files in ``replace``."""
+    folder = tmp_path / "room"
+    for src in ROOM.rglob("*"):
+        rel = src.relative_to(ROOM)
+        dst = folder / rel
+        if src.is_dir():
+            dst.mkdir(parents=True, exist_ok=True)
+            continue
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        if str(rel) in replace:
+            dst.write_bytes(replace[str(rel)])
+        else:
+            dst.symlink_to(src)
+    return folder
+
+
+def _fifth_depth() -> str:
+    lines = [ln for ln in (ROOM / "depth.txt").read_text().splitlines() if ln[:1].isdigit()]
+    return lines[4].split()[1]
+
+
+def test_header_sizes_are_read_without_decoding() -> None:
+    import cv2
+
+    grey = np.zeros((7, 11), np.uint8)
+    assert image_size(_png(grey)) == (11, 7)
+    for ext in (".jpg", ".bmp", ".pgm", ".webp"):
+        ok, buf = cv2.imencode(ext, np.zeros((7, 11, 3) if ext != ".pgm" else (7, 11), np.uint8))
+        assert ok
+        assert image_size(buf.tobytes()) == (11, 7), ext
+    assert image_size(b"P5\n# comment\n40000 40000\n255\n") == (HUGE, HUGE)
+    assert image_size(b"not an image") is None
+
+
+def test_a_lying_png_is_refused_before_decoding() -> None:
+    lying = _lying_png(_png(np.zeros((4, 4), np.uint16)), HUGE, HUGE)
+    img, reason = decode_image(lying)
+    assert img is None
+    assert f"{HUGE}x{HUGE}" in reason and f"{MAX_IMAGE_PIXELS / 1e6:g} megapixels" in reason
+    img, reason = decode_image(_png(np.zeros((4, 4), np.uint16)), expect=(5, 4))
+    assert img is None and "the camera is 5x4" in reason
+    assert decode_image(b"")[1] == "is empty"
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["run", "odometry", "{room}", "--out", "{out}", "--max-frames", "8"],
+        ["info", "{room}", "--deep"],
+    ],
+    ids=["run-odometry", "info-deep"],
+)
+def test_tum_folder_with_a_40000x40000_depth_png(tmp_path: Path, args: list[str]) -> None:
+    depth = _fifth_depth()
+    lying = _lying_png((ROOM / depth).read_bytes(), HUGE, HUGE)
+    room = _room_with(tmp_path, {depth: lying})
+    argv = [a.format(room=room, out=tmp_path / "out") for a in args]
+    code, err, seconds, rss_mb = _run(argv, tmp_path)
+    assert code == 3, err
+    assert "Traceback" not in err
+    assert Path(depth).name in err and f"{HUGE}x{HUGE}" in err
+    assert seconds < MAX_SECONDS and rss_mb < MAX_RSS_MB, (seconds, rss_mb)
+    strict = [a.format(room=room, out=tmp_path / "strict") for a in args] + ["--strict"]
+    code, err, _, _ = _run(strict, tmp_path)
+    assert code == 1 and "Traceback" not in err and Path(depth).name in err
+
+
+def test_a_depth_png_of_another_size_than_the_camera_is_skipped(tmp_path: Path) -> None:
+    depth = _fifth_depth()
+    room = _room_with(tmp_path, {depth: _png(np.zeros((10, 10), np.uint16))})
+    code, err, _, _ = _run(
+        ["run", "odometry", str(room), "--out", str(tmp_path / "out"), "--max-frames", "8"],
+        tmp_path,
+    )
+    assert code == 3 and "Traceback" not in err
+    assert Path(depth).name in err
+
+
+def _mcap_with_lying_depth(tmp_path: Path) -> Path:
+    """The room as a ROS 2 MCAP whose 5th depth Image claims 40000x40000 pixels."""
+    from mcap.reader import make_reader
+    from mcap.writer import CompressionType, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    from slamcli.formats.mcap.write import write_source_mcap
+    from slamcli.formats.tum_rgbd import TumRgbdSource
+
+    honest = tmp_path / "honest.mcap"
+    with TumRgbdSource.open(ROOM) as src:
+        write_source_mcap(src, honest, max_frames=8)
+    ts = get_typestore(Stores.ROS2_HUMBLE)
+    out = tmp_path / "lying.mcap"
+    seen = 0
+    with honest.open("rb") as fin, out.open("wb") as fout:
+        reader = make_reader(fin)
+        writer = Writer(fout, compression=CompressionType.NONE)
+        writer.start()
+        schemas: dict[int, int] = {}
+        channels: dict[int, int] = {}
+        for schema, channel, message in reader.iter_messages():
+            assert schema is not None
+            if schema.id not in schemas:
+                schemas[schema.id] = writer.register_schema(
+                    schema.name, schema.encoding, schema.data
+                )
+            if channel.id not in channels:
+                channels[channel.id] = writer.register_channel(
+                    channel.topic, channel.message_encoding, schemas[schema.id]
+                )
+            data = bytes(message.data)
+            if channel.topic == "/camera/depth/image_raw":
+                seen += 1
+                if seen == 5:
+                    msg: Any = ts.deserialize_cdr(data, "sensor_msgs/msg/Image")
+                    msg.width = msg.height = HUGE
+                    data = bytes(ts.serialize_cdr(msg, "sensor_msgs/msg/Image"))
+            writer.add_message(channels[channel.id], message.log_time, data, message.publish_time)
+        writer.finish()
+    assert seen >= 5
+    return out
+
+
+def test_mcap_raw_depth_image_that_lies_about_its_size(tmp_path: Path) -> None:
+    log = _mcap_with_lying_depth(tmp_path)
+    argv = ["run", "odometry", str(log), "--out", str(tmp_path / "out")]
+    code, err, seconds, rss_mb = _run(argv, tmp_path)
+    assert code == 3, err
+    assert "Traceback" not in err and f"{HUGE}x{HUGE}" in err
+    assert seconds < MAX_SECONDS and rss_mb < MAX_RSS_MB, (seconds, rss_mb)
+    code, err, _, _ = _run(["info", str(log), "--deep"], tmp_path)
+    assert code in (1, 3) and "Traceback" not in err
+
+
+def _map_with_image(tmp_path: Path, image: bytes, name: str) -> Path:
+    (tmp_path / name).write_bytes(image)
+    yaml_path = tmp_path / "map.yaml"
+    yaml_path.write_text(
+        f"image: {name}\nresolution: 0.05\norigin: [0.0, 0.0, 0.0]\nnegate: 0\n"
+        "occupied_thresh: 0.65\nfree_thresh: 0.196\n"
+    )
+    return yaml_path
+
+
+@pytest.mark.parametrize(
+    ("name", "image"),
+    [
+        ("map.pgm", b"P5\n40000 40000\n255\n" + bytes(100)),
+        ("map.png", _lying_png(_png(np.zeros((4, 4), np.uint8)), HUGE, HUGE)),
+    ],
+)
+def test_a_map_image_with_a_huge_header_is_one_line_error(
+    tmp_path: Path, name: str, image: bytes
+) -> None:
+    yaml_path = _map_with_image(tmp_path, image, name)
+    with pytest.raises(FormatError, match=rf"{name}: map image declares {HUGE}x{HUGE} pixels"):
+        read_map_yaml(yaml_path)
+    code, err, seconds, rss_mb = _run(["map", "show", str(yaml_path)], tmp_path)
+    assert code == 1 and "Traceback" not in err and name in err
+    assert seconds < MAX_SECONDS and rss_mb < MAX_RSS_MB, (seconds, rss_mb)
