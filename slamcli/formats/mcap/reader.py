@@ -15,6 +15,10 @@ read up to its first broken record.
 A chunk that fails to decompress, fails its CRC or does not parse is skipped and recorded in
 :attr:`LogHealth.bad_chunks`; with ``strict=True`` it raises :class:`InputError` instead, and
 so does a truncated log. Times are int64 nanoseconds.
+
+Memory and time are bounded on hostile input: a chunk or a message whose declared or actual
+uncompressed size passes ``max_chunk_bytes`` is refused as damage before it is read, and
+decompression runs in bounded steps that stop as soon as the output passes the declared size.
 """
 
 from __future__ import annotations
@@ -46,6 +50,8 @@ from slamcli.formats.text import format_stamp
 logger = logging.getLogger(__name__)
 
 DEFAULT_REORDER_WINDOW_NS = 1_000_000_000
+DEFAULT_MAX_CHUNK_BYTES = 256 * 2**20
+"""Largest chunk (uncompressed) or message read; larger ones are skipped as damage."""
 
 _HEADER = int(Opcode.HEADER)
 _FOOTER = int(Opcode.FOOTER)
@@ -77,6 +83,11 @@ _StreamEntry = tuple[int, int, int, int, bytes]
 
 _DAMAGE = (McapError, struct.error, ValueError, RuntimeError, OSError)
 """What parsing damaged bytes raises: mcap and struct errors, bad UTF-8, lz4's RuntimeError."""
+_MB = 2**20
+_INFLATE_STEP = 16 * _MB
+"""Output bytes produced per decompression call, so a lying header costs at most one step."""
+_MAX_RECORD = 8 * _MB
+"""Largest summary record or message index block per chunk read before it is checked."""
 
 
 class _Decompressor(Protocol):
@@ -85,6 +96,13 @@ class _Decompressor(Protocol):
 
 class _BadChunkError(Exception):
     """A chunk's bytes are unusable; the message says why."""
+
+
+class _OversizeError(_BadChunkError):
+    """A chunk or message is larger than ``max_chunk_bytes``; the message gives both sizes."""
+
+    def __init__(self, what: str, size: int, limit: int) -> None:
+        super().__init__(f"{what} {size} bytes ({size / _MB:.1f} MB), over the {_mb(limit)} limit")
 
 
 class McapLog(Closing):
@@ -96,6 +114,8 @@ class McapLog(Closing):
             around it.
         reorder_window_ns: how far (ns) a message of a log read front to back may arrive
             behind the newest one and still be put back into log-time order.
+        max_chunk_bytes: largest uncompressed chunk or message read (bytes); a larger one, by
+            its declared or its actual size, is skipped as damage (an error with ``strict``).
 
     Raises:
         InputError: the file is missing or empty, or (``strict``) truncated.
@@ -108,7 +128,13 @@ class McapLog(Closing):
         strict: bool = False,
         *,
         reorder_window_ns: int = DEFAULT_REORDER_WINDOW_NS,
+        max_chunk_bytes: int = DEFAULT_MAX_CHUNK_BYTES,
     ) -> None:
+        if max_chunk_bytes < 1:
+            raise ConfigError(
+                f"max_chunk_bytes must be >= 1 byte, got {max_chunk_bytes}",
+                hint=f"the default is {DEFAULT_MAX_CHUNK_BYTES} ({_mb(DEFAULT_MAX_CHUNK_BYTES)})",
+            )
         if reorder_window_ns < 0:
             raise ConfigError(
                 f"reorder_window_ns must be >= 0 ns, got {reorder_window_ns}",
@@ -117,6 +143,10 @@ class McapLog(Closing):
         self.path = Path(path)
         self.strict = strict
         self.reorder_window_ns = int(reorder_window_ns)
+        self.max_chunk_bytes = int(max_chunk_bytes)
+        # zstd may expand incompressible data by up to 1/128 plus a few headers; a chunk record
+        # longer than this cannot hold an uncompressed size within the limit.
+        self._max_chunk_record = self.max_chunk_bytes + self.max_chunk_bytes // 128 + 4096
         self.health = LogHealth()
         """What reading found wrong; ``dropped_late`` and ``reordered`` describe the last pass."""
         self._channels: dict[int, ChannelInfo] = {}
@@ -291,6 +321,10 @@ class McapLog(Closing):
 
     def _read_summary(self, summary_start: int, summary_crc: int) -> None:
         footer_at = self._size - _TAIL_SIZE
+        if footer_at - summary_start > self.max_chunk_bytes:
+            raise _OversizeError(
+                "the summary section is", footer_at - summary_start, self.max_chunk_bytes
+            )
         self._file.seek(summary_start)
         data = self._file.read(footer_at - summary_start)
         if summary_crc:
@@ -376,14 +410,18 @@ class McapLog(Closing):
             wanted.add(info.id)
 
     def _decompressor(self, compression: str, cache: dict[str, _Decompressor]) -> _Decompressor:
-        """A decompression function, cached per pass: a zstd context is not thread-safe."""
+        """A bounded decompression function, cached per pass: a zstd context is not thread-safe.
+
+        Each one returns exactly ``uncompressed_size`` bytes or raises :class:`_BadChunkError`,
+        and never produces more than one step past that size, whatever the data claims.
+        """
         known = cache.get(compression)
         if known is not None:
             return known
         if compression == "":
 
             def fn(data: memoryview, uncompressed_size: int) -> bytes:
-                return bytes(data)
+                return _exact(bytes(data), len(data), False, uncompressed_size)
 
         elif compression == "zstd":
             try:
@@ -396,10 +434,23 @@ class McapLog(Closing):
             dctx = zstandard.ZstdDecompressor()
 
             def fn(data: memoryview, uncompressed_size: int) -> bytes:
+                # decompress() trusts the frame's content size and allocates it up front; a
+                # stream reader fills a buffer of the declared size and nothing more.
+                out = bytearray(uncompressed_size)
+                view = memoryview(out)
+                got = 0
                 try:
-                    return dctx.decompress(data, max_output_size=uncompressed_size)
+                    reader = dctx.stream_reader(data, read_across_frames=True)
+                    while got < uncompressed_size:
+                        n = reader.readinto(view[got : got + _INFLATE_STEP])
+                        if not n:
+                            break
+                        got += n
+                    extra = reader.read(1)
                 except zstandard.ZstdError as exc:
                     raise _BadChunkError(f"does not decompress (zstd: {exc})") from None
+                del view
+                return _exact(out, got, bool(extra), uncompressed_size)
 
         elif compression == "lz4":
             try:
@@ -411,11 +462,30 @@ class McapLog(Closing):
                 ) from None
 
             def fn(data: memoryview, uncompressed_size: int) -> bytes:
+                pieces: list[bytes] = []
+                got = 0
+                feed: bytes | memoryview = data
+                dec = lz4.frame.LZ4FrameDecompressor()
                 try:
-                    out: bytes = lz4.frame.decompress(data)
+                    while got <= uncompressed_size:
+                        step = min(_INFLATE_STEP, uncompressed_size + 1 - got)
+                        piece = dec.decompress(feed, max_length=step)
+                        feed = b""
+                        got += len(piece)
+                        pieces.append(piece)
+                        if dec.eof:
+                            if not dec.unused_data:
+                                break
+                            # Concatenated frames: the next one starts where this one ended.
+                            feed = dec.unused_data
+                            dec = lz4.frame.LZ4FrameDecompressor()
+                        elif not piece:
+                            raise _BadChunkError(
+                                "does not decompress (lz4: the frame is cut short)"
+                            )
                 except RuntimeError as exc:
                     raise _BadChunkError(f"does not decompress (lz4: {exc})") from None
-                return out
+                return _exact(b"".join(pieces), got, False, uncompressed_size)
 
         else:
             raise _BadChunkError(f"has unknown compression {compression!r} (expected zstd, lz4)")
@@ -424,17 +494,31 @@ class McapLog(Closing):
 
     def _inflate(self, body: memoryview, cache: dict[str, _Decompressor]) -> tuple[bytes, int]:
         """Uncompressed records of a chunk record body, and the CRC they should have."""
+        if len(body) < _CHUNK_HEAD.size:
+            raise _BadChunkError(
+                f"is {len(body)} bytes long, too short for a chunk header ({_CHUNK_HEAD.size})"
+            )
         _, _, size, crc, name_len = _CHUNK_HEAD.unpack_from(body)
+        if size > self.max_chunk_bytes:
+            raise _OversizeError("declares an uncompressed size of", size, self.max_chunk_bytes)
         at = _CHUNK_HEAD.size
-        compression = str(body[at : at + name_len], "utf-8")
+        if at + name_len + _U64.size > len(body):
+            raise _BadChunkError(f"its compression name ({name_len} bytes) runs past the record")
+        try:
+            compression = str(body[at : at + name_len], "utf-8")
+        except UnicodeDecodeError:
+            raise _BadChunkError(
+                f"its compression name {bytes(body[at : at + name_len])!r} is not UTF-8 "
+                "(expected zstd, lz4 or empty)"
+            ) from None
         at += name_len
         data_len = _U64.unpack_from(body, at)[0]
         at += _U64.size
         if at + data_len > len(body):
-            raise _BadChunkError("its data runs past the end of the record")
+            raise _BadChunkError(
+                f"its data ({data_len} bytes) runs past the end of the record ({len(body)} bytes)"
+            )
         raw = self._decompressor(compression, cache)(body[at : at + data_len], size)
-        if len(raw) != size:
-            raise _BadChunkError(f"decompresses to {len(raw)} bytes, expected {size}")
         return raw, crc
 
     def _check_crc(self, raw: bytes, crc: int) -> None:
@@ -463,7 +547,15 @@ class McapLog(Closing):
         pos = 0
         n = len(raw)
         while pos < n:
+            if pos + 9 > n:
+                raise _BadChunkError(
+                    f"its records end in {n - pos} stray bytes at chunk byte {pos} "
+                    "(expected a 9-byte record header)"
+                )
             op, length = unpack_record(raw, pos)
+            if op == 0:
+                # Opcode 0 is never written; a run of them is zeroed or foreign data.
+                raise _BadChunkError(f"holds opcode 0x00 at chunk byte {pos}, not an MCAP record")
             body = pos + 9
             pos = body + length
             if pos > n:
@@ -478,24 +570,40 @@ class McapLog(Closing):
                 self._add_definition(op, memoryview(raw)[body:pos], topics, wanted)
         return out
 
-    def _bad_chunk(self, start: int, end: int, offset: int, reason: str) -> None:
+    def _bad_chunk(
+        self,
+        start: int,
+        end: int,
+        offset: int,
+        reason: str,
+        *,
+        what: str = "chunk",
+        oversize: bool = False,
+    ) -> None:
         entry = (start, end, offset)
         if entry in self.health.bad_chunks:
             return
         span = f"{format_stamp(start, 3)}-{format_stamp(end, 3)} s"
+        raise_limit = "raise the limit with --max-chunk-mb (max_chunk_bytes) if the log is genuine"
         if self.strict:
+            skip = "run without --strict to skip it and use the rest"
             raise InputError(
-                f"{self.path}: the chunk at byte {offset} (messages {span}) {reason}",
-                hint="run without --strict to skip it and use the rest; "
-                "'mcap doctor' lists the damage",
+                f"{self.path}: the {what} at byte {offset} (messages {span}) {reason}",
+                hint=f"{raise_limit}, or {skip}"
+                if oversize
+                else f"{skip}; 'mcap doctor' lists the damage",
             )
         self.health.bad_chunks.append(entry)
+        if oversize:
+            self.health.oversized[offset] = (what, reason)
         logger.warning(
-            "%s: skipped the chunk at byte %d: it %s; messages %s are lost",
+            "%s: skipped the %s at byte %d: it %s; messages %s are lost%s",
             self.path,
+            what,
             offset,
             reason,
             span,
+            f" ({raise_limit})" if oversize else "",
         )
 
     def _truncated_at(self, stop: int, last_good: int | None) -> None:
@@ -532,6 +640,8 @@ class McapLog(Closing):
         stats = {cid: ChannelStats() for cid in self._channels}
         try:
             for ci in self._chunk_indexes:
+                if ci.message_index_length > self.max_chunk_bytes:
+                    return None
                 first_at = min(ci.message_index_offsets.values())
                 self._file.seek(first_at)
                 block = self._file.read(ci.message_index_length)
@@ -644,6 +754,14 @@ class McapLog(Closing):
         The CRC is checked by the caller: decompression here and checksumming there both
         release the GIL, so they overlap on two cores.
         """
+        if ci.uncompressed_size > self.max_chunk_bytes:
+            raise _OversizeError(
+                "declares (in the chunk index) an uncompressed size of",
+                ci.uncompressed_size,
+                self.max_chunk_bytes,
+            )
+        if ci.chunk_length > self._max_chunk_record:
+            raise _OversizeError("is a chunk record of", ci.chunk_length, self.max_chunk_bytes)
         f.seek(ci.chunk_start_offset)
         record = f.read(ci.chunk_length)
         if len(record) != ci.chunk_length:
@@ -671,7 +789,11 @@ class McapLog(Closing):
             msgs = self._parse_chunk(raw, topics, wanted, lo, hi)
         except _BadChunkError as exc:
             self._bad_chunk(
-                ci.message_start_time, ci.message_end_time, ci.chunk_start_offset, str(exc)
+                ci.message_start_time,
+                ci.message_end_time,
+                ci.chunk_start_offset,
+                str(exc),
+                oversize=isinstance(exc, _OversizeError),
             )
             return None
         except _DAMAGE as exc:
@@ -738,10 +860,15 @@ class McapLog(Closing):
         cache: dict[str, _Decompressor] = {}
         for offset, op, length in walker:
             if op == _MESSAGE:
-                body = f.read(length)
                 if length < _MESSAGE_HEAD.size:
                     walker.broken_at = offset
                     break
+                if length > self.max_chunk_bytes:
+                    log = _MESSAGE_HEAD.unpack(f.read(_MESSAGE_HEAD.size))[2]
+                    too_big = _OversizeError("is a message record of", length, self.max_chunk_bytes)
+                    self._bad_chunk(log, log, offset, str(too_big), what="message", oversize=True)
+                    continue
+                body = f.read(length)
                 chan, seq, log, pub = _MESSAGE_HEAD.unpack_from(body)
                 last_good = log if last_good is None else max(last_good, log)
                 if chan in wanted and lo <= log < hi:
@@ -749,6 +876,14 @@ class McapLog(Closing):
                 elif chan not in self._channels:
                     self._unknown_channel(chan)
             elif op == _CHUNK:
+                if length < _CHUNK_HEAD.size:
+                    walker.broken_at = offset
+                    break
+                if length > self._max_chunk_record:
+                    start, end = struct.unpack("<QQ", f.read(16))
+                    too_big = _OversizeError("is a chunk record of", length, self.max_chunk_bytes)
+                    self._bad_chunk(start, end, offset, str(too_big), oversize=True)
+                    continue
                 record = memoryview(f.read(length))
                 start, end = _U64.unpack_from(record)[0], _U64.unpack_from(record, 8)[0]
                 if start < latest_chunk_end:
@@ -763,7 +898,9 @@ class McapLog(Closing):
                     self._check_crc(raw, crc)
                     msgs = self._parse_chunk(raw, topics, wanted, lo, hi)
                 except _BadChunkError as exc:
-                    self._bad_chunk(start, end, offset, str(exc))
+                    self._bad_chunk(
+                        start, end, offset, str(exc), oversize=isinstance(exc, _OversizeError)
+                    )
                     continue
                 except _DAMAGE as exc:
                     self._bad_chunk(start, end, offset, f"does not parse ({exc})")
@@ -842,6 +979,19 @@ class _RecordWalker:
                 return
             f.seek(end)
             pos = end
+
+
+def _exact(out: bytes | bytearray, got: int, more: bool, size: int) -> bytes:
+    """The first ``got`` bytes of ``out`` if that is exactly the declared ``size``."""
+    if got > size or more:
+        raise _BadChunkError(f"decompresses to more than the {size} bytes it declares")
+    if got < size:
+        raise _BadChunkError(f"decompresses to {got} bytes, expected {size}")
+    return bytes(out)
+
+
+def _mb(n: int) -> str:
+    return f"{n / _MB:g} MB"
 
 
 def _chunk_key(ci: ChunkIndex) -> tuple[int, int]:

@@ -61,6 +61,9 @@ class LogHealth:
     crc_checked: bool = False
     bad_chunks: list[tuple[int, int, int]] = field(default_factory=list)
     """(start_ns, end_ns, byte offset) of each chunk skipped because its CRC or data was bad."""
+    oversized: dict[int, tuple[str, str]] = field(default_factory=dict)
+    """(``"chunk"`` or ``"message"``, why) for each byte offset in ``bad_chunks`` that was
+    skipped for being larger than the reader's limit."""
     chunk_overlap: bool = False
     reordered: int = 0
     dropped_late: int = 0
@@ -84,9 +87,16 @@ class LogHealth:
                 f"truncated: the log ends without a footer{where}; {read} (try 'mcap recover')"
             )
         for start, end, offset in self.bad_chunks:
-            out.append(
-                f"bad chunk at byte {offset} skipped: messages {_sec(start)}-{_sec(end)} lost"
-            )
+            lost = f"messages {_sec(start)}-{_sec(end)} lost"
+            too_big = self.oversized.get(offset)
+            if too_big is None:
+                out.append(f"bad chunk at byte {offset} skipped: {lost}")
+            else:
+                what, why = too_big
+                out.append(
+                    f"{what} at byte {offset} skipped: it {why}; {lost} "
+                    "(raise --max-chunk-mb to read it)"
+                )
         if self.dropped_late:
             out.append(f"{self.dropped_late} message(s) came too late to reorder and were dropped")
         return out
