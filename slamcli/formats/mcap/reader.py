@@ -434,8 +434,21 @@ class McapLog(Closing):
             dctx = zstandard.ZstdDecompressor()
 
             def fn(data: memoryview, uncompressed_size: int) -> bytes:
-                # decompress() trusts the frame's content size and allocates it up front; a
-                # stream reader fills a buffer of the declared size and nothing more.
+                try:
+                    frame_size = zstandard.frame_content_size(data)
+                except zstandard.ZstdError as exc:
+                    raise _BadChunkError(f"does not decompress (zstd: {exc})") from None
+                if frame_size == uncompressed_size:
+                    # The usual case: one frame whose header agrees with the chunk. decompress()
+                    # sizes its output from that header, so it can write no more than declared.
+                    try:
+                        whole = dctx.decompress(data, max_output_size=uncompressed_size)
+                    except zstandard.ZstdError as exc:
+                        raise _BadChunkError(f"does not decompress (zstd: {exc})") from None
+                    return _exact(whole, len(whole), False, uncompressed_size)
+                # Otherwise the frame header is missing or lies, and decompress() would trust it
+                # (or the declared size) for its allocation; a stream reader fills a buffer of
+                # the declared size step by step and stops one byte past it.
                 out = bytearray(uncompressed_size)
                 view = memoryview(out)
                 got = 0
