@@ -174,7 +174,10 @@ def _export_trajectory(
     from slamcli.formats.trajectory import write_trajectory
 
     strict = bool(options.get("strict", False))
-    with McapSource(input, gt_topic=gt_topic, gt_frame=gt_frame, strict=strict) as source:
+    limit = {"max_chunk_mb": options["max_chunk_mb"]} if options.get("max_chunk_mb") else {}
+    with McapSource.open(
+        input, gt_topic=gt_topic, gt_frame=gt_frame, strict=strict, **limit
+    ) as source:
         trajectory = source.groundtruth()
         lost = list(source.stats.data_loss)
     if trajectory is None:

@@ -90,6 +90,17 @@ Strict = Annotated[
         rich_help_panel=PANEL,
     ),
 ]
+MaxChunkMb = Annotated[
+    int | None,
+    typer.Option(
+        "--max-chunk-mb",
+        min=1,
+        help="MCAP logs: largest chunk or message to read, in MB (2^20 bytes; default 256). "
+        "A larger one is skipped as damage; raise this for a genuine log with huge chunks.",
+        show_default=False,
+        rich_help_panel=PANEL,
+    ),
+]
 
 Robot = Annotated[
     int | None,
@@ -162,6 +173,7 @@ class SourceOptions:
     cy: float | None = None
     undistort: bool = False
     strict: bool = False
+    max_chunk_mb: int | None = None
     robot: int | None = None
     ignore_ids: bool = False
     rgb_topic: str | None = None
@@ -199,6 +211,7 @@ _OPTIONS: dict[str, Any] = {
     "cy": Cy,
     "undistort": Undistort,
     "strict": Strict,
+    "max_chunk_mb": MaxChunkMb,
     "robot": Robot,
     "ignore_ids": IgnoreIds,
     "rgb_topic": RgbTopic,

@@ -52,7 +52,7 @@ from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, Strea
 from slamcli.formats.mcap.adapters import Adapter, adapter_for, normalize_schema_name
 from slamcli.formats.mcap.decode import DecodeError, decoder_for
 from slamcli.formats.mcap.observations import SCHEMA_NAME as LANDMARK_SCHEMA_NAME
-from slamcli.formats.mcap.reader import McapLog
+from slamcli.formats.mcap.reader import DEFAULT_MAX_CHUNK_BYTES, McapLog
 from slamcli.formats.mcap.records import (
     CameraInfoRecord,
     ChannelInfo,
@@ -130,6 +130,8 @@ class McapSource(SourceBase):
             :func:`~slamcli.formats.camera.resolve_camera`).
         strict: a truncated log, a bad chunk or an undecodable message is an error instead
             of being read around.
+        max_chunk_bytes: largest uncompressed chunk or message read (see
+            :class:`~slamcli.formats.mcap.reader.McapLog`).
     """
 
     format_name = "mcap"
@@ -142,6 +144,7 @@ class McapSource(SourceBase):
         "cx",
         "cy",
         "strict",
+        "max_chunk_mb",
         "rgb_topic",
         "depth_topic",
         "camera_info_topic",
@@ -150,6 +153,14 @@ class McapSource(SourceBase):
         "gt_topic",
         "gt_frame",
     )
+
+    @classmethod
+    def open(cls, path: str | Path, **options: Any) -> McapSource:
+        """Open ``path`` with the command-line options; ``max_chunk_mb`` is in MB (2^20 B)."""
+        mb = options.pop("max_chunk_mb", None)
+        if mb is not None:
+            options["max_chunk_bytes"] = int(mb) * 2**20
+        return cls(path, **options)
 
     def __init__(
         self,
@@ -170,6 +181,7 @@ class McapSource(SourceBase):
         landmark_topic: str | None = None,
         gt_topic: str | None = None,
         gt_frame: str | None = None,
+        max_chunk_bytes: int = DEFAULT_MAX_CHUNK_BYTES,
     ) -> None:
         if not np.isfinite(max_dt) or max_dt <= 0:
             raise ConfigError(f"max_dt must be a positive number of seconds, got {max_dt}")
@@ -192,7 +204,7 @@ class McapSource(SourceBase):
         }
         self.gt_frame = gt_frame
         self.stats = ReadStats()
-        self.log = McapLog(self.path, strict=strict)
+        self.log = McapLog(self.path, strict=strict, max_chunk_bytes=max_chunk_bytes)
         self._channels = {c.topic: c for c in self.log.channels().values()}
         self._schema = {t: normalize_schema_name(c.schema_name) for t, c in self._channels.items()}
         self._probes: dict[str, ImageRecord | None] = {}
