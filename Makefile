@@ -1,13 +1,16 @@
 # make demo         - set everything up and run the demo on the bundled sample data
 # make test         - set everything up and run the test suite
 # make constraints  - re-resolve the newest releases pyproject.toml allows into constraints.txt
+# make fuzz         - run FUZZ_CASES seeded damaged inputs through the commands (minutes)
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
 STAMP  := $(VENV)/.installed
 PIP    := --quiet --disable-pip-version-check
+FUZZ_CASES ?= 10000
+FUZZ_SEED  ?= 0
 
-.PHONY: demo test setup syslibs lint bench constraints clean
+.PHONY: demo test setup syslibs lint bench fuzz constraints clean
 
 demo: setup
 	$(VENV)/bin/slamcli demo --out runs/demo --force
@@ -46,6 +49,10 @@ lint: setup
 
 bench: setup
 	@for f in benchmarks/bench_*.py; do echo "== $$f"; $(PY) $$f || exit 1; done
+
+# Problem cases are saved under runs/fuzz/<case id>/ with the damaged input and what went wrong.
+fuzz: setup
+	$(PY) tests/fuzzing.py --cases $(FUZZ_CASES) --seed $(FUZZ_SEED) --keep runs/fuzz
 
 clean:
 	rm -rf $(VENV) .venv-constraints runs .pytest_cache .mypy_cache .ruff_cache
