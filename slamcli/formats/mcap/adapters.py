@@ -87,7 +87,13 @@ def _get(obj: Any, name: str, default: Any = None) -> Any:
 def _bytes(value: Any) -> Any:
     """A buffer for an image payload; Foxglove JSON carries bytes fields as base64 strings."""
     if isinstance(value, str):
-        return base64.b64decode(value)
+        try:
+            return base64.b64decode(value)
+        except ValueError as exc:
+            # binascii.Error (bad padding or length) and non-ASCII text are both ValueErrors.
+            raise DecodeError(
+                f"the image data is not the base64 text Foxglove JSON carries ({exc})"
+            ) from None
     return value if value is not None else b""
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 import json
 import logging
 import re
+import struct
 from collections.abc import Callable
 from functools import lru_cache
 from typing import TYPE_CHECKING, Any
@@ -136,16 +137,46 @@ def _one_line(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
 
 
-def _cdr_decoder(topic: str, store: Typestore, typename: str) -> Decoder:
-    from rosbags.serde import SerdeError
+def _payload_problem(exc: BaseException) -> str:
+    """What a decoder's exception says about the payload, in the reader's terms.
 
+    Deserialisers report a short or corrupt payload through whatever failed first (``struct``,
+    slicing, UTF-8, allocation), often wrapped in their own error; the cause names the problem.
+    """
+    seen: BaseException | None = exc
+    while seen is not None:
+        if isinstance(seen, struct.error | IndexError | EOFError | BufferError):
+            return "it ends before all its fields are read (a length field is likely corrupt)"
+        if isinstance(seen, UnicodeDecodeError):
+            return f"a string field is not UTF-8 (byte {seen.start} of the string)"
+        if isinstance(seen, MemoryError | OverflowError):
+            return "a length or count field is implausibly large"
+        if isinstance(seen, RecursionError):
+            return "it nests too deeply"
+        seen = seen.__cause__ or seen.__context__
+    text = _one_line(exc)
+    if "unpack" in text and "buffer" in text:
+        return "it ends before all its fields are read (a length field is likely corrupt)"
+    if "codec can't decode" in text:
+        return "a string field is not UTF-8"
+    return text
+
+
+def _bad_payload(topic: str, what: str, data: bytes, exc: BaseException) -> DecodeError:
+    return DecodeError(
+        f"channel {topic}: a {what} message ({len(data)} bytes) does not decode: "
+        f"{_payload_problem(exc)}"
+    )
+
+
+def _cdr_decoder(topic: str, store: Typestore, typename: str) -> Decoder:
     def decode(data: bytes) -> Any:
         try:
             return store.deserialize_cdr(data, typename)
-        except (SerdeError, KeyError, IndexError) as exc:
-            raise DecodeError(
-                f"channel {topic}: cannot decode a {typename} CDR message: {_one_line(exc)}"
-            ) from exc
+        except Exception as exc:
+            # A damaged payload can fail anywhere inside the generated deserialiser; whatever
+            # it raises, the message is unreadable and the caller decides to skip or stop.
+            raise _bad_payload(topic, f"{typename} CDR", data, exc) from exc
 
     return decode
 
@@ -174,18 +205,14 @@ def _cdr_builtin(topic: str, encoding: str, schema_name: str, schema_data: bytes
 
 
 def _ros1_from_msg(topic: str, encoding: str, schema_name: str, schema_data: bytes) -> Decoder:
-    from rosbags.serde import SerdeError
-
     text = _schema_text(topic, schema_name, schema_data)
     store, typename = _build_store(schema_name, text, _msg_typestore, "ros1msg")
 
     def decode(data: bytes) -> Any:
         try:
             return store.deserialize_ros1(data, typename)
-        except (SerdeError, KeyError, IndexError) as exc:
-            raise DecodeError(
-                f"channel {topic}: cannot decode a {typename} ROS 1 message: {_one_line(exc)}"
-            ) from exc
+        except Exception as exc:
+            raise _bad_payload(topic, f"{typename} ROS 1", data, exc) from exc
 
     return decode
 
@@ -219,7 +246,7 @@ def _protobuf_class(schema_name: str, schema_data: bytes) -> Any:
 
 def _protobuf(topic: str, encoding: str, schema_name: str, schema_data: bytes) -> Decoder:
     try:
-        from google.protobuf.message import DecodeError as ProtobufDecodeError
+        import google.protobuf  # noqa: F401
     except ImportError:
         raise _SchemaProblem(
             "decoding protobuf needs the 'protobuf' package",
@@ -243,10 +270,10 @@ def _protobuf(topic: str, encoding: str, schema_name: str, schema_data: bytes) -
     def decode(data: bytes) -> Any:
         try:
             return parse(data)
-        except ProtobufDecodeError as exc:
-            raise DecodeError(
-                f"channel {topic}: cannot decode a {schema_name} protobuf message: {_one_line(exc)}"
-            ) from exc
+        except Exception as exc:
+            # protobuf's backends (upb, C++, pure Python) raise different types for bad wire
+            # data; all mean the payload is unreadable.
+            raise _bad_payload(topic, f"{schema_name} protobuf", data, exc) from exc
 
     return decode
 
@@ -257,10 +284,8 @@ def _json(topic: str, encoding: str, schema_name: str, schema_data: bytes) -> De
     def decode(data: bytes) -> Any:
         try:
             return json.loads(data)
-        except ValueError as exc:
-            raise DecodeError(
-                f"channel {topic}: cannot decode a {what} JSON message: {_one_line(exc)}"
-            ) from exc
+        except (ValueError, RecursionError) as exc:
+            raise _bad_payload(topic, f"{what} JSON", data, exc) from exc
 
     return decode
 
