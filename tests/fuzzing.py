@@ -916,7 +916,7 @@ def run_cases(
                 if slot.conn.poll():
                     try:
                         outcome = slot.conn.recv()
-                    except EOFError:
+                    except (EOFError, OSError):
                         died = True
                     else:
                         outcomes.append(outcome)
