@@ -36,6 +36,7 @@ import yaml
 
 from slamcli.atomic import write_text_atomic
 from slamcli.errors import ConfigError, FormatError, InputError
+from slamcli.formats.text import yaml_problem
 from slamcli.types import PinholeCamera
 
 log = logging.getLogger(__name__)
@@ -259,14 +260,14 @@ def _parse_mapping(p: Path, text: str) -> dict[str, Any]:
         try:
             data = json.loads(text)
         except json.JSONDecodeError as exc:
-            raise FormatError(p, f"not valid JSON ({exc.msg})", exc.lineno, _FILE_HINT) from None
+            raise FormatError(
+                p, f"not valid JSON ({exc.msg} at column {exc.colno})", exc.lineno, _FILE_HINT
+            ) from None
     else:
         try:
             data = yaml.safe_load(text)
         except yaml.YAMLError as exc:
-            mark = getattr(exc, "problem_mark", None)
-            line = mark.line + 1 if mark is not None else None
-            problem = getattr(exc, "problem", None) or "syntax error"
+            problem, line = yaml_problem(exc, text)
             raise FormatError(p, f"not valid YAML ({problem})", line, _FILE_HINT) from None
     if not isinstance(data, dict):
         raise FormatError(

@@ -16,7 +16,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import FormatError
-from slamcli.formats.text import iter_data_lines, parse_floats
+from slamcli.formats.text import iter_data_lines, parse_count, parse_floats
 
 # Tag -> (dimension, number of values after the ids, number of ids).
 _TAGS = {
@@ -129,6 +129,4 @@ def read_g2o(path: str | Path) -> PoseGraph:
 
 
 def _id(text: str, path: Path, line: int, column: int) -> int:
-    if not text.isdigit():
-        raise FormatError(path, f"column {column}: vertex id {text!r} is not a whole number", line)
-    return int(text)
+    return parse_count(text, path, line, f"column {column}: vertex id")

@@ -64,7 +64,13 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
-from slamcli.formats.text import format_stamp, iter_data_lines, parse_floats, parse_stamp_ns
+from slamcli.formats.text import (
+    format_stamp,
+    iter_data_lines,
+    parse_count,
+    parse_floats,
+    parse_stamp_ns,
+)
 from slamcli.formats.trajectory import read_trajectory
 from slamcli.geometry import interpolate_planar, planar_to_se3, se3_to_planar, wrap_angle
 from slamcli.types import (
@@ -862,11 +868,7 @@ class VictoriaParkSource(LandmarkSource):
         )
 
     def _index(self, text: str, line: int, what: str) -> int:
-        if not text.isdigit():
-            raise FormatError(
-                self.path, f"{what} index {text!r} is not a non-negative integer", line
-            )
-        return int(text)
+        return parse_count(text, self.path, line, f"{what} index")
 
     @classmethod
     def sniff(cls, path: str | Path) -> bool:

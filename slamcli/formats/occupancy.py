@@ -75,6 +75,7 @@ from slamcli.errors import (
     UnknownFormatError,
 )
 from slamcli.formats.images import decode_image, size_problem
+from slamcli.formats.text import yaml_problem
 from slamcli.types import OccupancyGrid
 
 log = logging.getLogger(__name__)
@@ -190,11 +191,8 @@ def _read_map_meta(p: Path) -> _MapYaml:
         node = yaml.compose(text, Loader=yaml.SafeLoader)
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        problem = getattr(exc, "problem", None) or str(exc)
-        raise FormatError(
-            p, f"is not valid YAML ({problem})", line=mark.line + 1 if mark else None
-        ) from exc
+        problem, line = yaml_problem(exc, text)
+        raise FormatError(p, f"is not valid YAML ({problem})", line=line) from exc
     if not isinstance(data, dict) or not isinstance(node, yaml.MappingNode):
         raise FormatError(p, "expected a mapping of map keys", line=1, hint=_KEYS_HINT)
     lines: dict[str, int] = {}

@@ -9,7 +9,10 @@ from pathlib import Path
 
 from slamcli.errors import FormatError, InputError
 
-_STAMP = re.compile(r"^[+-]?(\d+)(?:\.(\d*))?(?:[eE]([+-]?\d+))?$")
+# ASCII only: \d would also take other scripts' digits, which int() reads but a file format
+# never means.
+_STAMP = re.compile(r"^[+-]?(\d+)(?:\.(\d*))?(?:[eE]([+-]?\d+))?$", re.ASCII)
+_INT64_MAX = 2**63 - 1
 
 
 def iter_data_lines(
@@ -51,11 +54,33 @@ def parse_stamp_ns(text: str, path: str | Path, line: int) -> int:
         value = float(text)
         if not math.isfinite(value):
             raise FormatError(path, f"timestamp {text!r} is not finite", line)
+        if abs(value) * 1e9 > _INT64_MAX:
+            raise FormatError(path, f"timestamp {text!r} is out of range", line)
         return round(value * 1e9)
     ns = int(whole) * 1_000_000_000 + int((frac + "000000000")[:9])
     if len(frac) > 9 and int(frac[9]) >= 5:
         ns += 1
+    if ns > _INT64_MAX:
+        raise FormatError(
+            path, f"timestamp {text!r} is out of range (at most about 9.2e9 seconds)", line
+        )
     return -ns if text.startswith("-") else ns
+
+
+def parse_count(
+    text: str,
+    path: str | Path,
+    line: int,
+    what: str,
+    expected: str = "a non-negative whole number",
+) -> int:
+    """A non-negative whole number written in ASCII digits that fits in int64."""
+    if not (text.isascii() and text.isdigit()):
+        raise FormatError(path, f"{what} {text!r} is not {expected}", line)
+    value = int(text)
+    if value > _INT64_MAX:
+        raise FormatError(path, f"{what} {text!r} is out of range", line)
+    return value
 
 
 def parse_floats(
@@ -86,3 +111,22 @@ def format_stamp(stamp_ns: int, decimals: int = 9) -> str:
     whole, frac = divmod(ticks, 10**decimals)
     sign = "-" if ns < 0 else ""
     return f"{sign}{whole}.{frac:0{decimals}d}" if decimals else f"{sign}{whole}"
+
+
+def yaml_problem(exc: Exception, text: str) -> tuple[str, int | None]:
+    """A PyYAML error as one line of text and the 1-based line it points at (None if unknown).
+
+    PyYAML's own messages span several lines and quote the input; a scanner or parser error
+    carries a ``problem_mark``, a reader error (a control character, bad encoding) only the
+    character offset into ``text``.
+    """
+    mark = getattr(exc, "problem_mark", None)
+    if mark is not None:
+        problem = " ".join(str(getattr(exc, "problem", None) or "syntax error").split())
+        return f"{problem} at column {mark.column + 1}", mark.line + 1
+    position = getattr(exc, "position", None)
+    character = getattr(exc, "character", None)
+    if isinstance(position, int) and isinstance(character, str):
+        line = text.count("\n", 0, position) + 1
+        return f"control character #x{ord(character):04x} is not allowed", line
+    return " ".join(str(exc).split()), None

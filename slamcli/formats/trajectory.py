@@ -35,7 +35,13 @@ from numpy.typing import NDArray
 
 from slamcli.atomic import atomic_path
 from slamcli.errors import FormatError, InputError, UnknownFormatError
-from slamcli.formats.text import format_stamp, iter_data_lines, parse_floats, parse_stamp_ns
+from slamcli.formats.text import (
+    format_stamp,
+    iter_data_lines,
+    parse_count,
+    parse_floats,
+    parse_stamp_ns,
+)
 from slamcli.geometry import make_pose, matrix_to_quat_xyzw, quat_wxyz_to_matrix
 from slamcli.types import Trajectory
 
@@ -282,11 +288,9 @@ def _read_euroc(path: Path) -> PoseTable:
     numbers, rows = _collect(path, None, ",", "timestamp [ns], p_xyz, q_wxyz, ...")
     stamps_list: list[int] = []
     for lineno, r in zip(numbers, rows, strict=True):
-        if not r[0].isdigit():
-            raise FormatError(
-                path, f"timestamp {r[0]!r} is not an integer number of nanoseconds", lineno
-            )
-        stamps_list.append(int(r[0]))
+        stamps_list.append(
+            parse_count(r[0], path, lineno, "timestamp", "an integer number of nanoseconds")
+        )
     values = _to_floats(path, numbers, [r[1:] for r in rows], "value", first_column=2)
     poses = make_pose(_rotations_from_quats(path, numbers, values[:, 3:7]), values[:, :3])
     return PoseTable(
