@@ -36,6 +36,7 @@ import yaml
 
 from slamcli.atomic import write_text_atomic
 from slamcli.errors import ConfigError, FormatError, InputError
+from slamcli.formats.images import size_problem
 from slamcli.formats.text import yaml_problem
 from slamcli.types import PinholeCamera
 
@@ -270,9 +271,8 @@ def _parse_mapping(p: Path, text: str) -> dict[str, Any]:
             problem, line = yaml_problem(exc, text)
             raise FormatError(p, f"not valid YAML ({problem})", line, _FILE_HINT) from None
     if not isinstance(data, dict):
-        raise FormatError(
-            p, f"expected a mapping of keys, found {type(data).__name__}", None, _FILE_HINT
-        )
+        found = "an empty file" if data is None else f"a {type(data).__name__}"
+        raise FormatError(p, f"expected a mapping of keys, found {found}", None, _FILE_HINT)
     return data
 
 
@@ -294,6 +294,10 @@ def _size(p: Path, data: dict[str, Any]) -> tuple[int, int]:
         if v != int(v):
             raise FormatError(p, f"key {key!r}: expected a whole number of pixels, found {v!r}")
         out.append(int(v))
+    # A camera larger than any image slamcli decodes would only size gigabyte-sized buffers.
+    problem = size_problem(out[0], out[1])
+    if problem:
+        raise FormatError(p, f"keys 'width', 'height': the camera {problem}", hint=_FILE_HINT)
     return out[0], out[1]
 
 

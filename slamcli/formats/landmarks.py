@@ -703,6 +703,8 @@ class MrclamSource(LandmarkSource):
         if not p.is_file():
             return None
         gt = read_table(p, ("time", "x", "y", "theta"))
+        if len(gt) == 0:
+            raise FormatError(p, "holds no ground-truth rows (time x y theta)")
         gt.check_time_order()
         # A Trajectory's stamps strictly increase: keep the first row of a repeated stamp.
         keep = np.concatenate([[True], np.diff(gt.stamps_ns) > 0])

@@ -117,8 +117,8 @@ def yaml_problem(exc: Exception, text: str) -> tuple[str, int | None]:
     """A PyYAML error as one line of text and the 1-based line it points at (None if unknown).
 
     PyYAML's own messages span several lines and quote the input; a scanner or parser error
-    carries a ``problem_mark``, a reader error (a control character, bad encoding) only the
-    character offset into ``text``.
+    carries a ``problem_mark``, a reader error (a control character) only the character's code
+    and its offset into ``text``.
     """
     mark = getattr(exc, "problem_mark", None)
     if mark is not None:
@@ -126,7 +126,7 @@ def yaml_problem(exc: Exception, text: str) -> tuple[str, int | None]:
         return f"{problem} at column {mark.column + 1}", mark.line + 1
     position = getattr(exc, "position", None)
     character = getattr(exc, "character", None)
-    if isinstance(position, int) and isinstance(character, str):
+    if isinstance(position, int) and isinstance(character, int):
         line = text.count("\n", 0, position) + 1
-        return f"control character #x{ord(character):04x} is not allowed", line
+        return f"character #x{character:04x} is not allowed", line
     return " ".join(str(exc).split()), None
