@@ -223,3 +223,76 @@ def test_a_map_image_with_a_huge_header_is_one_line_error(
     code, err, seconds, rss_mb = _run(["map", "show", str(yaml_path)], tmp_path)
     assert code == 1 and "Traceback" not in err and name in err
     assert seconds < MAX_SECONDS and rss_mb < MAX_RSS_MB, (seconds, rss_mb)
+
+
+def test_a_list_naming_a_device_is_an_unreadable_frame_not_an_endless_read(
+    tmp_path: Path,
+) -> None:
+    text = (ROOM / "rgb.txt").read_text()
+    fifth = [ln for ln in text.splitlines() if ln[:1].isdigit()][4]
+    room = _room_with(
+        tmp_path, {"rgb.txt": text.replace(fifth, fifth.split()[0] + " /dev/zero").encode()}
+    )
+    argv = ["run", "odometry", str(room), "--out", str(tmp_path / "out"), "--max-frames", "8"]
+    code, out, seconds, rss_mb = _run(argv, tmp_path)
+    assert code == 3 and "Traceback" not in out
+    assert "skipping /dev/zero: is not a regular file" in out
+    assert seconds < MAX_SECONDS and rss_mb < MAX_RSS_MB, (seconds, rss_mb)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        (
+            b"width: 320\nheight: 240\n\x01fx: 3\n",
+            r"camera\.yaml:3: not valid YAML \(character #x0001",
+        ),
+        (b"", "expected a mapping of keys, found an empty file"),
+        (b"- 1\n", "expected a mapping of keys, found a list"),
+        (b"width: 400000\nheight: 400000\nfx: 1\nfy: 1\ncx: 1\ncy: 1\n", "megapixels"),
+    ],
+)
+def test_a_hostile_camera_file_is_a_one_line_error(
+    tmp_path: Path, text: bytes, message: str
+) -> None:
+    from slamcli.formats.camera import load_camera_file
+
+    (tmp_path / "camera.yaml").write_bytes(text)
+    with pytest.raises(FormatError, match=message) as info:
+        load_camera_file(tmp_path / "camera.yaml")
+    assert "\n" not in str(info.value)
+
+
+def test_a_camera_json_error_names_line_and_column(tmp_path: Path) -> None:
+    from slamcli.formats.camera import load_camera_file
+
+    (tmp_path / "camera.json").write_text('{\n  "width": 320,,\n}')
+    with pytest.raises(FormatError, match=r"camera\.json:2: not valid JSON \(.* at column 16\)"):
+        load_camera_file(tmp_path / "camera.json")
+
+
+@pytest.mark.parametrize("stamp", ["99999999999999999999", "1e300", "١٢٣.5", "1" * 400])
+def test_out_of_range_or_foreign_timestamps_are_format_errors(tmp_path: Path, stamp: str) -> None:
+    from slamcli.formats.trajectory import read_trajectory
+
+    path = tmp_path / "t.txt"
+    path.write_text(f"1.0 0 0 0 0 0 0 1\n{stamp} 0 0 0 0 0 0 1\n")
+    with pytest.raises(FormatError, match=r"t\.txt:2: timestamp"):
+        read_trajectory(path)
+
+
+@pytest.mark.parametrize("vertex", ["99999999999999999999999", "²"])
+def test_g2o_ids_beyond_int64_or_not_ascii_digits(tmp_path: Path, vertex: str) -> None:
+    from slamcli.formats.g2o import read_g2o
+
+    path = tmp_path / "g.g2o"
+    path.write_text(f"VERTEX_SE2 0 0 0 0\nVERTEX_SE2 {vertex} 1 0 0\n")
+    with pytest.raises(FormatError, match=r"g\.g2o:2: column 2: vertex id"):
+        read_g2o(path)
+
+
+def test_a_map_yaml_with_a_control_character_names_its_line(tmp_path: Path) -> None:
+    yaml_path = _map_with_image(tmp_path, _png(np.zeros((4, 4), np.uint8)), "map.png")
+    yaml_path.write_bytes(yaml_path.read_bytes() + b"\x07: 1\n")
+    with pytest.raises(FormatError, match=r"map\.yaml:7: is not valid YAML \(character #x0007"):
+        read_map_yaml(yaml_path)

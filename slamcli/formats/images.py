@@ -10,7 +10,10 @@ None, 5.x raises ``cv2.error``); both come back here as a reason, never as an ex
 
 from __future__ import annotations
 
+import os
+import stat
 import struct
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -19,6 +22,9 @@ from numpy.typing import NDArray
 MAX_IMAGE_PIXELS = 50_000_000
 """Largest image (width x height) slamcli decodes: 50 megapixels, far above any camera frame
 or occupancy map it works with, and small enough that decoding stays well under a gigabyte."""
+
+MAX_IMAGE_FILE_BYTES = 512 * 1024 * 1024
+"""Largest image file read: an uncompressed 16-bit RGB image at the pixel limit fits."""
 
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
 # JPEG start-of-frame markers (baseline, progressive, lossless, arithmetic); C4, C8 and CC are not.
@@ -113,6 +119,31 @@ def _webp_size(head: bytes) -> tuple[int, int]:
         width, height = struct.unpack("<HH", head[26:30])
         return width & 0x3FFF, height & 0x3FFF
     raise ValueError("WebP header is truncated or of an unknown kind")
+
+
+def read_image_file(path: Path) -> tuple[bytes | None, str]:
+    """An image file's bytes: ``(data, "")``, or ``(None, reason)``.
+
+    Only regular files are read, and only up to :data:`MAX_IMAGE_FILE_BYTES`: a list file may
+    name a device such as ``/dev/zero``, which would otherwise be read forever.
+    """
+    try:
+        with path.open("rb") as fh:
+            st = os.fstat(fh.fileno())
+            if not stat.S_ISREG(st.st_mode):
+                return None, "is not a regular file"
+            if st.st_size > MAX_IMAGE_FILE_BYTES:
+                return None, (
+                    f"is {st.st_size / 2**20:.0f} MiB, more than the limit of "
+                    f"{MAX_IMAGE_FILE_BYTES / 2**20:.0f} MiB for an image file"
+                )
+            return fh.read(), ""
+    except FileNotFoundError:
+        return None, "does not exist"
+    except IsADirectoryError:
+        return None, "is a folder"
+    except OSError as exc:
+        return None, f"cannot be read ({exc.strerror})"
 
 
 def size_problem(

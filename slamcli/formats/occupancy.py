@@ -74,7 +74,7 @@ from slamcli.errors import (
     MapError,
     UnknownFormatError,
 )
-from slamcli.formats.images import decode_image, size_problem
+from slamcli.formats.images import decode_image, read_image_file, size_problem
 from slamcli.formats.text import yaml_problem
 from slamcli.types import OccupancyGrid
 
@@ -299,10 +299,9 @@ def _read_image(
             line=meta.lines.get("image"),
             hint="'image' is relative to the YAML file's folder unless it is absolute",
         )
-    try:
-        data = img.read_bytes()
-    except OSError as exc:
-        raise FormatError(img, f"cannot be read ({exc.strerror})") from exc
+    data, reason = read_image_file(img)
+    if data is None:
+        raise FormatError(img, f"map image {reason}")
     if data[:2] == b"P5":
         grey, header = _decode_p5(img, data)
         return grey * 3.0, None, header

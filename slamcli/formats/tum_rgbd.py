@@ -40,7 +40,7 @@ from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
 from slamcli.formats.camera import DEFAULT_DEPTH_FACTOR, resolve_camera
-from slamcli.formats.images import decode_image
+from slamcli.formats.images import decode_image, read_image_file
 from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.text import iter_data_lines, parse_floats, parse_stamp_ns
 from slamcli.formats.trajectory import read_trajectory
@@ -456,15 +456,9 @@ class TumRgbdSource(SourceBase):
         The size in the file's header is checked against ``expect`` (width, height) and
         :data:`~slamcli.formats.images.MAX_IMAGE_PIXELS` before anything is decoded.
         """
-        path = self.path / lst.files[k]
-        try:
-            data = path.read_bytes()
-        except FileNotFoundError:
-            return None, "does not exist"
-        except OSError as exc:
-            if not path.is_file():
-                return None, "does not exist"
-            return None, f"cannot be read ({exc.strerror})"
+        data, reason = read_image_file(self.path / lst.files[k])
+        if data is None:
+            return None, reason
         img, reason = decode_image(data, flags, expect=expect)
         if img is None:
             return None, reason
