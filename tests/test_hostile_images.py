@@ -194,7 +194,10 @@ def test_mcap_raw_depth_image_that_lies_about_its_size(tmp_path: Path) -> None:
     assert "Traceback" not in err and f"{HUGE}x{HUGE}" in err
     assert seconds < MAX_SECONDS and rss_mb < MAX_RSS_MB, (seconds, rss_mb)
     code, err, _, _ = _run(["info", str(log), "--deep"], tmp_path)
-    assert code in (1, 3) and "Traceback" not in err
+    assert code == 3 and "Traceback" not in err and f"{HUGE}x{HUGE}" in err
+    strict = [*argv[:-1], str(tmp_path / "strict"), "--strict"]
+    code, err, _, _ = _run(strict, tmp_path)
+    assert code == 1 and "Traceback" not in err and f"{HUGE}x{HUGE}" in err
 
 
 def _map_with_image(tmp_path: Path, image: bytes, name: str) -> Path:
@@ -296,3 +299,17 @@ def test_a_map_yaml_with_a_control_character_names_its_line(tmp_path: Path) -> N
     yaml_path.write_bytes(yaml_path.read_bytes() + b"\x07: 1\n")
     with pytest.raises(FormatError, match=r"map\.yaml:7: is not valid YAML \(character #x0007"):
         read_map_yaml(yaml_path)
+
+
+def test_mcap_image_payloads_that_lie_are_decode_errors() -> None:
+    from slamcli.formats.mcap.adapters import decode_compressed_image, decode_raw_image
+    from slamcli.formats.mcap.decode import DecodeError
+
+    lying = _lying_png(_png(np.zeros((4, 4), np.uint16)), HUGE, HUGE)
+    for fmt in ("png", "16UC1; compressedDepth png"):
+        with pytest.raises(DecodeError, match=f"declares {HUGE}x{HUGE} pixels"):
+            decode_compressed_image("/cam", fmt, lying)
+    with pytest.raises(DecodeError, match=f"declares {HUGE}x{HUGE} pixels"):
+        decode_raw_image("/cam", "16UC1", HUGE, HUGE, 0, bytes(32))
+    with pytest.raises(DecodeError, match="needs 80 bytes, the message has 32"):
+        decode_raw_image("/cam", "16UC1", 5, 8, 0, bytes(32))
