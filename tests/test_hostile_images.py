@@ -313,3 +313,13 @@ def test_mcap_image_payloads_that_lie_are_decode_errors() -> None:
         decode_raw_image("/cam", "16UC1", HUGE, HUGE, 0, bytes(32))
     with pytest.raises(DecodeError, match="needs 80 bytes, the message has 32"):
         decode_raw_image("/cam", "16UC1", 5, 8, 0, bytes(32))
+
+
+def test_landmark_values_beyond_the_table_limit_are_format_errors(tmp_path: Path) -> None:
+    from slamcli.formats.landmarks import MAX_TABLE_VALUE, read_table
+
+    path = tmp_path / "odometry.csv"
+    path.write_text("t,v,omega\n1.0,0.5,0.1\n1.1,1e308,0.1\n")
+    limit = f"{MAX_TABLE_VALUE:g}"
+    with pytest.raises(FormatError, match=rf"odometry\.csv:3: column 2 \(v\): .*at most {limit}"):
+        read_table(path, ("t", "v", "omega"), delimiter=",")

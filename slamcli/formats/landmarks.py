@@ -105,6 +105,11 @@ _NS_PER_S = 1_000_000_000
 _POW10 = np.array([10**k for k in range(19)], dtype=np.int64)
 
 
+MAX_TABLE_VALUE = 1e9
+"""Largest magnitude of a table value (metres, m/s, radians, ids): far beyond any real
+reading, and small enough that the filters' squares and products stay finite."""
+
+
 # --- Text tables -------------------------------------------------------------------------------
 
 
@@ -172,12 +177,24 @@ def read_table(
 
     Raises:
         InputError: the file is missing or unreadable.
-        FormatError: a wrong field count, a non-number or a non-finite value (names file:line).
+        FormatError: a wrong field count, a non-number, a non-finite value or one beyond
+            :data:`MAX_TABLE_VALUE` (names file:line).
     """
     p = Path(path)
-    return _read_table_fast(p, columns, stamped, delimiter) or _read_table_slow(
+    table = _read_table_fast(p, columns, stamped, delimiter) or _read_table_slow(
         p, columns, stamped, delimiter
     )
+    rows, cols = np.nonzero(np.abs(table.values) > MAX_TABLE_VALUE)
+    if rows.size:
+        k, c = int(rows[0]), int(cols[0])
+        name = columns[c + 1 if stamped else c]
+        raise FormatError(
+            p,
+            f"column {c + (2 if stamped else 1)} ({name}): {table.values[k, c]:g} is out of "
+            f"range (at most {MAX_TABLE_VALUE:g} in magnitude)",
+            int(table.lines[k]),
+        )
+    return table
 
 
 def _read_table_fast(
@@ -831,6 +848,14 @@ class VictoriaParkSource(LandmarkSource):
                 )
             i, j = self._index(fields[1], number, "pose"), self._index(fields[2], number, tag)
             values = parse_floats(fields[3:], self.path, number, first_column=4)
+            for col, v in enumerate(values, start=4):
+                if abs(v) > MAX_TABLE_VALUE:
+                    raise FormatError(
+                        self.path,
+                        f"column {col}: {v:g} is out of range (at most {MAX_TABLE_VALUE:g} in "
+                        "magnitude)",
+                        number,
+                    )
             if tag == "ODOMETRY":
                 if i != pose or j <= i:
                     raise FormatError(
@@ -870,7 +895,11 @@ class VictoriaParkSource(LandmarkSource):
         )
 
     def _index(self, text: str, line: int, what: str) -> int:
-        return parse_count(text, self.path, line, f"{what} index")
+        index = parse_count(text, self.path, line, f"{what} index")
+        if index > MAX_TABLE_VALUE:
+            limit = f"at most {MAX_TABLE_VALUE:g}"
+            raise FormatError(self.path, f"{what} index {index} is out of range ({limit})", line)
+        return index
 
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
