@@ -324,3 +324,12 @@ def test_landmark_values_beyond_the_table_limit_are_format_errors(tmp_path: Path
     limit = re.escape(f"{MAX_TABLE_VALUE:g}")
     with pytest.raises(FormatError, match=rf"odometry\.csv:3: column 2 \(v\): .*at most {limit}"):
         read_table(path, ("t", "v", "omega"), delimiter=",")
+
+
+def test_trajectory_positions_beyond_the_limit_are_format_errors(tmp_path: Path) -> None:
+    from slamcli.formats.trajectory import read_trajectory
+
+    path = tmp_path / "t.txt"
+    path.write_text("1.0 0 0 0 0 0 0 1\n2.0 1e308 0 0 0 0 0 1\n")
+    with pytest.raises(FormatError, match=r"t\.txt:2: column 2: value '1e308' is out of range"):
+        read_trajectory(path)

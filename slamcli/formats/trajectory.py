@@ -56,6 +56,10 @@ QUAT_NORM_TOL = 1e-2
 ROTATION_TOL = 1e-3
 """Largest accepted entry of ``|R^T R - I|`` for KITTI rotations (6 printed digits give 1e-6)."""
 
+MAX_POSE_VALUE = 1e9
+"""Largest magnitude of a pose value: a million kilometres, beyond any geo-referenced
+coordinate, and small enough that alignment's sums of squares stay finite."""
+
 _NS_PER_S = 1_000_000_000
 _EUROC_MIN_STAMP_NS = 10**12
 """A first CSV column at least this large is read as nanoseconds (EuRoC); 1e12 ns = 16 min."""
@@ -252,6 +256,15 @@ def _to_floats(
         raise FormatError(
             path,
             f"column {col + first_column}: {what} {rows[row][col]!r} is not finite",
+            numbers[row],
+        )
+    big = np.abs(values) > MAX_POSE_VALUE
+    if big.any():
+        row, col = np.argwhere(big)[0]
+        raise FormatError(
+            path,
+            f"column {col + first_column}: {what} {rows[row][col]!r} is out of range (at most "
+            f"{MAX_POSE_VALUE:g} in magnitude)",
             numbers[row],
         )
     return values
