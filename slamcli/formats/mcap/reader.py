@@ -421,7 +421,10 @@ class McapLog(Closing):
         if compression == "":
 
             def fn(data: memoryview, uncompressed_size: int) -> bytes:
-                return _exact(bytes(data), len(data), False, uncompressed_size)
+                problem = _size_problem(len(data), False, uncompressed_size)
+                if problem is not None:
+                    raise _BadChunkError(problem)
+                return bytes(data)
 
         elif compression == "zstd":
             try:
@@ -445,13 +448,18 @@ class McapLog(Closing):
                         whole = dctx.decompress(data, max_output_size=uncompressed_size)
                     except zstandard.ZstdError as exc:
                         raise _BadChunkError(f"does not decompress (zstd: {exc})") from None
-                    return _exact(whole, len(whole), False, uncompressed_size)
+                    problem = _size_problem(len(whole), False, uncompressed_size)
+                    if problem is not None:
+                        del whole
+                        raise _BadChunkError(problem)
+                    return whole
                 # Otherwise the frame header is missing or lies, and decompress() would trust it
                 # (or the declared size) for its allocation; a stream reader fills a buffer of
                 # the declared size step by step and stops one byte past it.
                 out = bytearray(uncompressed_size)
                 view = memoryview(out)
                 got = 0
+                problem = None
                 try:
                     reader = dctx.stream_reader(data, read_across_frames=True)
                     while got < uncompressed_size:
@@ -459,11 +467,15 @@ class McapLog(Closing):
                         if not n:
                             break
                         got += n
-                    extra = reader.read(1)
+                    problem = _size_problem(got, bool(reader.read(1)), uncompressed_size)
                 except zstandard.ZstdError as exc:
-                    raise _BadChunkError(f"does not decompress (zstd: {exc})") from None
+                    problem = f"does not decompress (zstd: {exc})"
                 del view
-                return _exact(out, got, bool(extra), uncompressed_size)
+                if problem is not None:
+                    # Not raised while the buffer is alive: the traceback would keep it.
+                    del out
+                    raise _BadChunkError(problem)
+                return bytes(out)
 
         elif compression == "lz4":
             try:
@@ -479,6 +491,7 @@ class McapLog(Closing):
                 got = 0
                 feed: bytes | memoryview = data
                 dec = lz4.frame.LZ4FrameDecompressor()
+                problem = None
                 try:
                     while got <= uncompressed_size:
                         step = min(_INFLATE_STEP, uncompressed_size + 1 - got)
@@ -493,12 +506,16 @@ class McapLog(Closing):
                             feed = dec.unused_data
                             dec = lz4.frame.LZ4FrameDecompressor()
                         elif not piece:
-                            raise _BadChunkError(
-                                "does not decompress (lz4: the frame is cut short)"
-                            )
+                            problem = "does not decompress (lz4: the frame is cut short)"
+                            break
+                    problem = problem or _size_problem(got, False, uncompressed_size)
                 except RuntimeError as exc:
-                    raise _BadChunkError(f"does not decompress (lz4: {exc})") from None
-                return _exact(b"".join(pieces), got, False, uncompressed_size)
+                    problem = f"does not decompress (lz4: {exc})"
+                if problem is not None:
+                    # Not raised while the pieces are alive: the traceback would keep them.
+                    del pieces
+                    raise _BadChunkError(problem)
+                return b"".join(pieces)
 
         else:
             raise _BadChunkError(f"has unknown compression {compression!r} (expected zstd, lz4)")
@@ -796,6 +813,22 @@ class McapLog(Closing):
         """Check and parse one fetched chunk; ``None`` if it is bad or nothing is wanted."""
         if fetched is None:
             return None
+        # The worker's exception is read, not re-raised: raising it here would add this frame
+        # (which holds the future, which holds the exception) to its traceback, a cycle that
+        # keeps the chunk's buffers alive until the garbage collector happens to run.
+        failure = fetched.exception()
+        if failure is not None:
+            reason = str(failure) if isinstance(failure, _BadChunkError) else None
+            if reason is None and not isinstance(failure, _DAMAGE):
+                raise failure
+            self._bad_chunk(
+                ci.message_start_time,
+                ci.message_end_time,
+                ci.chunk_start_offset,
+                reason or f"does not parse ({failure})",
+                oversize=isinstance(failure, _OversizeError),
+            )
+            return None
         try:
             raw, crc = fetched.result()
             self._check_crc(raw, crc)
@@ -994,13 +1027,13 @@ class _RecordWalker:
             pos = end
 
 
-def _exact(out: bytes | bytearray, got: int, more: bool, size: int) -> bytes:
-    """The first ``got`` bytes of ``out`` if that is exactly the declared ``size``."""
+def _size_problem(got: int, more: bool, size: int) -> str | None:
+    """Why ``got`` decompressed bytes (``more`` if there was still output) are not ``size``."""
     if got > size or more:
-        raise _BadChunkError(f"decompresses to more than the {size} bytes it declares")
+        return f"decompresses to more than the {size} bytes it declares"
     if got < size:
-        raise _BadChunkError(f"decompresses to {got} bytes, expected {size}")
-    return bytes(out)
+        return f"decompresses to {got} bytes, expected {size}"
+    return None
 
 
 def _mb(n: int) -> str:
