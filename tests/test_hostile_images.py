@@ -333,3 +333,47 @@ def test_trajectory_positions_beyond_the_limit_are_format_errors(tmp_path: Path)
     path.write_text("1.0 0 0 0 0 0 0 1\n2.0 1e308 0 0 0 0 0 1\n")
     with pytest.raises(FormatError, match=r"t\.txt:2: column 2: value '1e308' is out of range"):
         read_trajectory(path)
+
+
+def test_an_npz_map_declaring_a_huge_array_is_refused_unread(tmp_path: Path) -> None:
+    import io
+    import zipfile
+
+    from slamcli.formats.occupancy import NPZ_FORMAT, NPZ_FORMAT_VERSION, read_map_npz
+
+    path = tmp_path / "map.npz"
+    with zipfile.ZipFile(path, "w") as zf:
+        for name, value in (
+            ("format", np.array(NPZ_FORMAT)),
+            ("format_version", np.array(NPZ_FORMAT_VERSION)),
+            ("resolution_m", np.array(0.05)),
+            ("origin_xy_yaw", np.zeros(3)),
+        ):
+            buf = io.BytesIO()
+            np.save(buf, value)
+            zf.writestr(f"{name}.npy", buf.getvalue())
+        buf = io.BytesIO()
+        header = {"descr": "<f4", "fortran_order": False, "shape": (HUGE, HUGE)}
+        np.lib.format.write_array_header_1_0(buf, header)
+        zf.writestr("prob.npy", buf.getvalue() + bytes(64))
+    with pytest.raises(FormatError, match=r"array 'prob' declares shape \(40000, 40000\)"):
+        read_map_npz(path)
+
+
+@pytest.mark.parametrize(
+    ("line", "message"),
+    [
+        ("resolution: 1e-300", "'resolution' must be 1e-06 to"),
+        ("resolution: 1e308", "'resolution' must be 1e-06 to"),
+        ("origin: [1e308, 0.0, 0.0]", "'origin' values must be at most 1e"),
+    ],
+)
+def test_map_yaml_values_out_of_range(tmp_path: Path, line: str, message: str) -> None:
+    yaml_path = _map_with_image(tmp_path, _png(np.zeros((4, 4), np.uint8)), "map.png")
+    key = line.split(":")[0]
+    text = "\n".join(
+        line if ln.startswith(key + ":") else ln for ln in yaml_path.read_text().splitlines()
+    )
+    yaml_path.write_text(text + "\n")
+    with pytest.raises(FormatError, match=re.escape(message)):
+        read_map_yaml(yaml_path)

@@ -74,7 +74,12 @@ from slamcli.errors import (
     MapError,
     UnknownFormatError,
 )
-from slamcli.formats.images import decode_image, read_image_file, size_problem
+from slamcli.formats.images import (
+    MAX_IMAGE_PIXELS,
+    decode_image,
+    read_image_file,
+    size_problem,
+)
 from slamcli.formats.text import yaml_problem
 from slamcli.types import OccupancyGrid
 
@@ -115,9 +120,18 @@ _NPZ_HINT = (
     "writes a map_server map.yaml, which 'slamcli plan' and 'slamcli map show' also read"
 )
 
+_NPZ_ARRAYS = ("format", "format_version", "prob", "resolution_m", "origin_xy_yaw")
 _REQUIRED_KEYS = ("image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh")
 _KEYS_HINT = "a map_server YAML needs image, resolution, origin: [x, y, yaw], negate, "
 _KEYS_HINT += "occupied_thresh and free_thresh (mode is optional)"
+
+MAP_RESOLUTION_RANGE = (1e-6, 1e6)
+"""Accepted cell sizes (m): beyond these, cell <-> world conversions overflow or lose every
+digit of a world coordinate."""
+
+MAP_ORIGIN_MAX = 1e9
+"""Largest accepted magnitude of an origin value (m, rad): beyond any geo-referenced map."""
+
 _MAX_RGB = 65535.0
 """GraphicsMagick Q16's quantum range: 8-bit samples v are stored as v * 257."""
 _WRITE_SUFFIXES = (".pgm", ".png", ".bmp")
@@ -219,6 +233,11 @@ def _read_map_meta(p: Path) -> _MapYaml:
     resolution = _number(data["resolution"], "resolution", fail)
     if not (math.isfinite(resolution) and resolution > 0):
         raise fail("resolution", f"'resolution' must be a positive number, got {resolution}")
+    lo, hi = MAP_RESOLUTION_RANGE
+    if not lo <= resolution <= hi:
+        raise fail(
+            "resolution", f"'resolution' must be {lo:g} to {hi:g} m per cell, got {resolution}"
+        )
 
     origin_raw = data["origin"]
     if not isinstance(origin_raw, list):
@@ -228,6 +247,11 @@ def _read_map_meta(p: Path) -> _MapYaml:
     origin = tuple(_number(v, "origin", fail) for v in origin_raw)
     if not all(math.isfinite(v) for v in origin):
         raise fail("origin", f"'origin' must be finite, got {list(origin)}")
+    if any(abs(v) > MAP_ORIGIN_MAX for v in origin):
+        raise fail(
+            "origin",
+            f"'origin' values must be at most {MAP_ORIGIN_MAX:g} in magnitude, got {list(origin)}",
+        )
 
     negate = _negate(data["negate"], fail)
     occupied = _number(data["occupied_thresh"], "occupied_thresh", fail)
@@ -729,7 +753,10 @@ def read_map_npz(path: str | Path) -> OccupancyGrid:
                 hint=_NPZ_HINT,
             )
         with z:
-            arrays = {name: z[name] for name in z.files}
+            wanted = [n for n in _NPZ_ARRAYS if n in z.files]
+            for name in wanted:
+                _check_npz_member_size(p, z, name)
+            arrays = {name: z[name] for name in wanted}
     except FormatError:
         raise
     except OSError as exc:
@@ -774,6 +801,31 @@ def read_map_npz(path: str | Path) -> OccupancyGrid:
         raise FormatError(p, f"'origin_xy_yaw' must be 3 finite numbers, got {origin!r}")
     x, y, yaw = (float(v) for v in origin)
     return OccupancyGrid(prob, float(res), (x, y, yaw))
+
+
+def _check_npz_member_size(p: Path, z: Any, name: str) -> None:
+    """Refuse an array whose header declares more than a map at the image limit, unread.
+
+    A compressed member of zeros declaring gigabytes is a few kilobytes on disk.
+    """
+    member = f"{name}.npy"
+    if member not in z.zip.namelist():
+        raise FormatError(p, f"'{name}' is not an .npy array", hint=_NPZ_HINT)
+    with z.zip.open(member) as fh:
+        version = np.lib.format.read_magic(fh)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+        else:
+            raise FormatError(p, f"array '{name}' has .npy format version {version}")
+    cells = math.prod(shape)
+    if cells * dtype.itemsize > MAX_IMAGE_PIXELS * 8:
+        raise FormatError(
+            p,
+            f"array '{name}' declares shape {shape} of {dtype}, more than the limit of "
+            f"{MAX_IMAGE_PIXELS / 1e6:g} million cells",
+        )
 
 
 def _is_real(a: NDArray[Any], shape: tuple[int, ...]) -> bool:
