@@ -377,3 +377,13 @@ def test_map_yaml_values_out_of_range(tmp_path: Path, line: str, message: str) -
     yaml_path.write_text(text + "\n")
     with pytest.raises(FormatError, match=re.escape(message)):
         read_map_yaml(yaml_path)
+
+
+def test_a_camera_number_with_a_bare_exponent_is_read_as_a_number(tmp_path: Path) -> None:
+    from slamcli.formats.camera import load_camera_file
+
+    (tmp_path / "camera.yaml").write_text(
+        "width: 320\nheight: 240\nfx: 256e0\nfy: 2.56e2\ncx: 1595e-1\ncy: 119.5\n"
+    )
+    cam = load_camera_file(tmp_path / "camera.yaml").camera
+    assert (cam.fx, cam.fy, cam.cx) == (256.0, 256.0, 159.5)

@@ -80,6 +80,7 @@ _FILE_HINT = (
 )
 _DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
 _PRESET_IN_NAME = re.compile(r"(?:^|_)(?:freiburg|fr)([123])(?:_|$)")
+_YAML11_EXPONENT = re.compile(r"[+-]?(?:\d+\.?\d*|\.\d+)[eE][+-]?\d+", re.ASCII)
 
 
 @dataclass(frozen=True)
@@ -280,6 +281,10 @@ def _number(p: Path, data: dict[str, Any], key: str, positive: bool = False) -> 
     if key not in data or data[key] is None:
         raise FormatError(p, f"missing key {key!r}", hint=_FILE_HINT)
     value = data[key]
+    if isinstance(value, str) and _YAML11_EXPONENT.fullmatch(value.strip()):
+        # YAML 1.1 (PyYAML) reads 5e2 or 1e-05, an exponent without a decimal point, as a
+        # string; YAML 1.2, OpenCV and yaml-cpp read it as the number it looks like.
+        value = float(value)
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
         raise FormatError(p, f"key {key!r}: expected a number, found {value!r}", hint=_FILE_HINT)
     if positive and value <= 0:
