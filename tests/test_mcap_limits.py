@@ -244,6 +244,15 @@ def test_a_chunk_lying_about_its_size_stops_decompressing_at_the_declared_size(
     assert f"more than the {MB} bytes it declares" in output
 
 
+def test_a_refused_chunk_is_freed_before_the_next_pass(room: Path, tmp_path: Path) -> None:
+    # 200 MB is read before the lie shows; info --deep reads the log in several passes, and
+    # each must free that buffer, or the peak grows by 200 MB a pass.
+    bomb = tmp_path / "liar.mcap"
+    data = zeros_zstd(GIB, content_size=False)
+    at = with_chunk(room, bomb, data, compression="zstd", declared=200 * MB)
+    check_refused(commands(bomb, tmp_path / "run")[0], bomb, at)
+
+
 def test_a_record_length_of_2_to_the_62_is_a_truncation(room: Path, tmp_path: Path) -> None:
     bomb = tmp_path / "long.mcap"
     at = with_chunk(room, bomb, b"", compression="", declared=0, indexed=False, record_length=2**62)

@@ -447,7 +447,12 @@ class McapLog(Closing):
                     try:
                         whole = dctx.decompress(data, max_output_size=uncompressed_size)
                     except zstandard.ZstdError as exc:
-                        raise _BadChunkError(f"does not decompress (zstd: {exc})") from None
+                        if "too small" in str(exc):
+                            # libzstd's words for output that would pass the declared size.
+                            problem = _size_problem(uncompressed_size + 1, True, uncompressed_size)
+                        else:
+                            problem = f"does not decompress (zstd: {exc})"
+                        raise _BadChunkError(problem) from None
                     problem = _size_problem(len(whole), False, uncompressed_size)
                     if problem is not None:
                         del whole
