@@ -342,6 +342,21 @@ def test_library_limit_and_oversized_unchunked_message(tmp_path: Path) -> None:
         assert source.log.max_chunk_bytes == 4 * MB
 
 
+@pytest.mark.parametrize("indexed", [True, False], ids=["indexed", "streamed"])
+def test_a_chunk_record_too_long_for_the_limit_is_not_read(
+    room: Path, tmp_path: Path, indexed: bool
+) -> None:
+    # The header declares 10 bytes, but 2 MB of compressed data cannot hold that little.
+    path = tmp_path / "long.mcap"
+    at = with_chunk(room, path, bytes(2 * MB), compression="zstd", declared=10, indexed=indexed)
+    # 1.5 MB: the sample's own chunks (1.1 MB) stay readable.
+    with McapLog(path, max_chunk_bytes=3 * MB // 2) as log:
+        assert sum(1 for _ in log.messages()) > 0
+        assert [c[2] for c in log.health.bad_chunks] == [at]
+        assert log.health.oversized[at][0] == "chunk"
+        assert "chunk record of 2" in log.health.oversized[at][1]
+
+
 def _mutations(data: bytes, rng: random.Random, n: int) -> list[bytes]:
     out = []
     for _ in range(n):
