@@ -387,3 +387,28 @@ def test_a_camera_number_with_a_bare_exponent_is_read_as_a_number(tmp_path: Path
     )
     cam = load_camera_file(tmp_path / "camera.yaml").camera
     assert (cam.fx, cam.fy, cam.cx) == (256.0, 256.0, 159.5)
+
+
+def _png_with_a_lying_chunk(data: bytes) -> bytes:
+    """``data`` (a PNG) with its first IDAT chunk declaring 4 GB."""
+    at = data.index(b"IDAT") - 4
+    return data[:at] + struct.pack(">I", 0xF8000000) + data[at + 4 :]
+
+
+def test_a_png_chunk_longer_than_the_file_is_refused_before_decoding(tmp_path: Path) -> None:
+    img, reason = decode_image(_png_with_a_lying_chunk(_png(np.zeros((4, 4), np.uint16))))
+    assert img is None and reason == "cannot be decoded as an image"
+    depth = _fifth_depth()
+    room = _room_with(tmp_path, {depth: _png_with_a_lying_chunk((ROOM / depth).read_bytes())})
+    code, out, seconds, rss_mb = _run(["info", str(room), "--deep"], tmp_path)
+    assert code == 3 and "Traceback" not in out and Path(depth).name in out
+    assert seconds < MAX_SECONDS and rss_mb < MAX_RSS_MB, (seconds, rss_mb)
+
+
+def test_formats_without_a_checked_header_are_refused() -> None:
+    import cv2
+
+    ok, tiff = cv2.imencode(".tiff", np.zeros((4, 4), np.uint8))
+    assert ok
+    img, reason = decode_image(tiff.tobytes())
+    assert img is None and "not PNG, JPEG, PNM, BMP or WebP" in reason

@@ -4,8 +4,10 @@ An image file states its size in a header of a few bytes, and a decoder allocate
 pixels before it reads any pixel data: a 3 MB PNG can declare 40000x40000 pixels (3.2 GB as
 16-bit depth). :func:`decode_image` reads the size from the header (PNG, JPEG, PNM, BMP, WebP)
 and refuses an image larger than :data:`MAX_IMAGE_PIXELS`, or of another size than the caller
-expects, before OpenCV allocates anything. OpenCV's own refusals differ by version (4.x returns
-None, 5.x raises ``cv2.error``); both come back here as a reason, never as an exception.
+expects, or a PNG whose chunks do not fit in the file, before OpenCV allocates anything; other
+formats are refused, since their sizes are not checked. OpenCV's own refusals differ by version
+(4.x returns None, 5.x raises ``cv2.error``); both come back here as a reason, never as an
+exception.
 """
 
 from __future__ import annotations
@@ -41,6 +43,7 @@ def image_size(data: bytes) -> tuple[int, int] | None:
     if head.startswith(_PNG_MAGIC):
         if len(head) < 24 or head[12:16] != b"IHDR":
             raise ValueError("PNG header is truncated or has no IHDR chunk first")
+        _check_png_chunks(data)
         width, height = struct.unpack(">II", head[16:24])
         return int(width), int(height)
     if head.startswith(b"\xff\xd8"):
@@ -55,6 +58,24 @@ def image_size(data: bytes) -> tuple[int, int] | None:
     if head.startswith(b"RIFF") and head[8:12] == b"WEBP":
         return _webp_size(head)
     return None
+
+
+def _check_png_chunks(data: bytes) -> None:
+    """Every chunk must fit in the data: OpenCV allocates a chunk's declared length before it
+    reads it, so one flipped length byte in a 40 kB file asked for 4 GB."""
+    pos = len(_PNG_MAGIC)
+    while pos + 8 <= len(data):
+        (length,) = struct.unpack(">I", data[pos : pos + 4])
+        kind = data[pos + 4 : pos + 8]
+        if pos + 12 + length > len(data):
+            raise ValueError(
+                f"PNG chunk {kind.decode('latin-1')!r} at byte {pos} declares {length} bytes, "
+                f"{len(data) - pos - 12} remain"
+            )
+        if kind == b"IEND":
+            return
+        pos += 12 + length
+    raise ValueError("PNG data is truncated before its IEND chunk")
 
 
 def _jpeg_size(data: bytes) -> tuple[int, int]:
@@ -171,7 +192,7 @@ def decode_image(
     """Decode an encoded image: ``(image, "")``, or ``(None, reason)`` if it is refused.
 
     Args:
-        data: the encoded bytes (PNG, JPEG, PNM, BMP, WebP, or anything else OpenCV reads).
+        data: the encoded bytes: PNG, JPEG, PNM, BMP or WebP; other formats are refused.
         flags: ``cv2.IMREAD_*`` flags; default ``IMREAD_UNCHANGED``.
         expect: (width, height) the image must have, checked from the header before decoding.
         limit: largest width x height decoded.
@@ -187,10 +208,12 @@ def decode_image(
     except ValueError:
         # A decoder refuses these headers too; the reason is worded as for any undecodable image.
         return None, "cannot be decoded as an image"
-    if size is not None:
-        problem = size_problem(size[0], size[1], expect, limit)
-        if problem:
-            return None, problem
+    if size is None:
+        # Only formats whose header is checked here reach a decoder.
+        return None, "cannot be decoded as an image (not PNG, JPEG, PNM, BMP or WebP)"
+    problem = size_problem(size[0], size[1], expect, limit)
+    if problem:
+        return None, problem
     try:
         img = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED if flags is None else flags)
     except cv2.error as exc:
