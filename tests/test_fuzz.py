@@ -10,6 +10,7 @@ from __future__ import annotations
 import dataclasses
 import json
 import random
+import shutil
 import struct
 import zlib
 from pathlib import Path
@@ -17,6 +18,9 @@ from pathlib import Path
 import fuzzing
 import pytest
 from conftest import shared_path
+from typer.testing import CliRunner
+
+from slamcli.cli.app import app
 
 CI_SEED = 20261124
 CI_CASES = 40
@@ -99,6 +103,25 @@ def test_known_problem_cases(
     case = fuzzing.make_case(seed, index, all_targets, 1)
     (outcome,) = fuzzing.run_cases([case], root, seed, workers=1, keep=tmp_path)
     assert not outcome.problems, _report([outcome])
+
+
+def test_ekf_that_diverges_on_absurd_odometry_fails_with_a_message(
+    corpus: tuple[Path, list[fuzzing.Target]], tmp_path: Path
+) -> None:
+    """A speed within the reader's bounds but absurd (9e8 m/s) made a singular covariance."""
+    root, _ = corpus
+    log = tmp_path / "log"
+    shutil.copytree(root / "landmarks", log)
+    rows = (log / "odometry.csv").read_text().splitlines(keepends=True)
+    stamp, _, omega = rows[29].split(",")
+    rows[29] = f"{stamp},9e8,{omega}"
+    (log / "odometry.csv").write_text("".join(rows))
+    out = tmp_path / "run"
+    result = CliRunner().invoke(app, ["run", "ekf", str(log), "--out", str(out)])
+    assert result.exit_code == 1, result.output
+    assert "the EKF diverged" in result.output
+    assert not out.exists()
+    assert [p.name for p in tmp_path.iterdir()] == ["log"]
 
 
 def test_cases_are_reproducible_from_seed_and_index() -> None:

@@ -234,14 +234,24 @@ class EkfSlam:
     # -- frames -----------------------------------------------------------------------------
 
     def process(self, frame: Any) -> None:
-        if isinstance(frame, OdometryFrame):
-            self._odometry(frame)
-        elif isinstance(frame, LandmarkFrame):
-            self._observations(frame)
-        else:
+        if not isinstance(frame, OdometryFrame | LandmarkFrame):
             raise PipelineError(
                 f"the ekf pipeline takes odometry and landmark frames, not {type(frame).__name__}"
             )
+        try:
+            if isinstance(frame, OdometryFrame):
+                self._odometry(frame)
+            else:
+                self._observations(frame)
+        except np.linalg.LinAlgError as exc:
+            raise _diverged(frame.stamp_ns, f"a covariance became singular ({exc})") from exc
+        # Readers bound each value, but a speed or rate that is in range and still absurd for
+        # the log (1e8 m/s) overflows the covariance: stop here rather than write NaN poses.
+        ekf = self._ekf
+        if ekf is not None and not (
+            np.isfinite(ekf.pose).all() and np.isfinite(ekf.pose_cov).all()
+        ):
+            raise _diverged(frame.stamp_ns, "the pose or its covariance is no longer finite")
 
     def _advance(self, stamp_ns: int) -> None:
         """Move the robot to ``stamp_ns`` with the current control."""
@@ -627,9 +637,14 @@ class EkfSlam:
                 return final.get(ident)
 
             start = self._start if self._start is not None else np.zeros(3)
-            smoothed, _, used = smooth_path(
-                self._events, len(stamps), start, self._start_cov, lookup, self._gate
-            )
+            try:
+                smoothed, _, used = smooth_path(
+                    self._events, len(stamps), start, self._start_cov, lookup, self._gate
+                )
+            except np.linalg.LinAlgError as exc:
+                raise _diverged(
+                    None, f"smoothing the path met a singular covariance ({exc})"
+                ) from exc
             trajectory = Trajectory(stamps, planar_to_se3(smoothed))
             counts["smoother_observations"] = used
         return SlamResult(
@@ -654,3 +669,11 @@ def _relative(a: F64, b: F64) -> F64:
     c, s = np.cos(a[2]), np.sin(a[2])
     dx, dy = b[0] - a[0], b[1] - a[1]
     return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[2] - a[2])])
+
+
+def _diverged(stamp_ns: int | None, why: str) -> PipelineError:
+    at = "" if stamp_ns is None else f" at t={stamp_ns * 1e-9:.3f} s"
+    return PipelineError(
+        f"the EKF diverged{at}: {why}",
+        hint="check the odometry (speeds, rates) and the observations for absurd values",
+    )
