@@ -357,6 +357,24 @@ def test_a_chunk_record_too_long_for_the_limit_is_not_read(
         assert "chunk record of 2" in log.health.oversized[at][1]
 
 
+def test_a_chunk_of_countless_tiny_records_is_refused(room: Path, tmp_path: Path) -> None:
+    # Empty records of a user opcode cost parsing time and nothing else; the limit allows one
+    # record per 256 bytes (6144 for 1.5 MB), so 7000 of them, 63 kB in all, are refused.
+    import zstandard
+
+    records = (b"\x80" + bytes(8)) * 7000
+    path = tmp_path / "tiny.mcap"
+    data = zstandard.ZstdCompressor().compress(records)
+    at = with_chunk(room, path, data, compression="zstd", declared=len(records))
+    with McapLog(path, max_chunk_bytes=3 * MB // 2) as log:
+        assert sum(1 for _ in log.messages()) > 0
+        assert [c[2] for c in log.health.bad_chunks] == [at]
+        assert "more than 6144 records" in log.health.oversized[at][1]
+    with McapLog(path) as log:
+        assert sum(1 for _ in log.messages()) > 0
+        assert not log.health.bad_chunks
+
+
 def _mutations(data: bytes, rng: random.Random, n: int) -> list[bytes]:
     out = []
     for _ in range(n):

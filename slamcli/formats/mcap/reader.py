@@ -86,8 +86,9 @@ _DAMAGE = (McapError, struct.error, ValueError, RuntimeError, OSError)
 _MB = 2**20
 _INFLATE_STEP = 16 * _MB
 """Output bytes produced per decompression call, so a lying header costs at most one step."""
-_MAX_RECORD = 8 * _MB
-"""Largest summary record or message index block per chunk read before it is checked."""
+_BYTES_PER_RECORD = 256
+"""A chunk may hold one record per this many bytes of ``max_chunk_bytes``: each message costs
+about 200 bytes of bookkeeping, and each record parsing time, whatever its own size."""
 
 
 class _Decompressor(Protocol):
@@ -99,10 +100,11 @@ class _BadChunkError(Exception):
 
 
 class _OversizeError(_BadChunkError):
-    """A chunk or message is larger than ``max_chunk_bytes``; the message gives both sizes."""
+    """A chunk or message is larger than ``max_chunk_bytes`` allows; the message says how."""
 
-    def __init__(self, what: str, size: int, limit: int) -> None:
-        super().__init__(f"{what} {size} bytes ({size / _MB:.1f} MB), over the {_mb(limit)} limit")
+
+def _over(what: str, size: int, limit: int) -> _OversizeError:
+    return _OversizeError(f"{what} {size} bytes ({size / _MB:.1f} MB), over the {_mb(limit)} limit")
 
 
 class McapLog(Closing):
@@ -322,9 +324,7 @@ class McapLog(Closing):
     def _read_summary(self, summary_start: int, summary_crc: int) -> None:
         footer_at = self._size - _TAIL_SIZE
         if footer_at - summary_start > self.max_chunk_bytes:
-            raise _OversizeError(
-                "the summary section is", footer_at - summary_start, self.max_chunk_bytes
-            )
+            raise _over("the summary section is", footer_at - summary_start, self.max_chunk_bytes)
         self._file.seek(summary_start)
         data = self._file.read(footer_at - summary_start)
         if summary_crc:
@@ -535,7 +535,7 @@ class McapLog(Closing):
             )
         _, _, size, crc, name_len = _CHUNK_HEAD.unpack_from(body)
         if size > self.max_chunk_bytes:
-            raise _OversizeError("declares an uncompressed size of", size, self.max_chunk_bytes)
+            raise _over("declares an uncompressed size of", size, self.max_chunk_bytes)
         at = _CHUNK_HEAD.size
         if at + name_len + _U64.size > len(body):
             raise _BadChunkError(f"its compression name ({name_len} bytes) runs past the record")
@@ -581,7 +581,15 @@ class McapLog(Closing):
         unpack_message = _MESSAGE_HEAD.unpack_from
         pos = 0
         n = len(raw)
+        left = self.max_chunk_bytes // _BYTES_PER_RECORD
         while pos < n:
+            left -= 1
+            if left < 0:
+                cap = self.max_chunk_bytes // _BYTES_PER_RECORD
+                raise _OversizeError(
+                    f"holds more than {cap} records, the most the {_mb(self.max_chunk_bytes)} "
+                    f"limit allows (one per {_BYTES_PER_RECORD} bytes)"
+                )
             if pos + 9 > n:
                 raise _BadChunkError(
                     f"its records end in {n - pos} stray bytes at chunk byte {pos} "
@@ -790,13 +798,13 @@ class McapLog(Closing):
         release the GIL, so they overlap on two cores.
         """
         if ci.uncompressed_size > self.max_chunk_bytes:
-            raise _OversizeError(
+            raise _over(
                 "declares (in the chunk index) an uncompressed size of",
                 ci.uncompressed_size,
                 self.max_chunk_bytes,
             )
         if ci.chunk_length > self._max_chunk_record:
-            raise _OversizeError("is a chunk record of", ci.chunk_length, self.max_chunk_bytes)
+            raise _over("is a chunk record of", ci.chunk_length, self.max_chunk_bytes)
         f.seek(ci.chunk_start_offset)
         record = f.read(ci.chunk_length)
         if len(record) != ci.chunk_length:
@@ -916,7 +924,7 @@ class McapLog(Closing):
                     break
                 if length > self.max_chunk_bytes:
                     log = _MESSAGE_HEAD.unpack(f.read(_MESSAGE_HEAD.size))[2]
-                    too_big = _OversizeError("is a message record of", length, self.max_chunk_bytes)
+                    too_big = _over("is a message record of", length, self.max_chunk_bytes)
                     self._bad_chunk(log, log, offset, str(too_big), what="message", oversize=True)
                     continue
                 body = f.read(length)
@@ -932,7 +940,7 @@ class McapLog(Closing):
                     break
                 if length > self._max_chunk_record:
                     start, end = struct.unpack("<QQ", f.read(16))
-                    too_big = _OversizeError("is a chunk record of", length, self.max_chunk_bytes)
+                    too_big = _over("is a chunk record of", length, self.max_chunk_bytes)
                     self._bad_chunk(start, end, offset, str(too_big), oversize=True)
                     continue
                 record = memoryview(f.read(length))
