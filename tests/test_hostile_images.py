@@ -81,8 +81,8 @@ def _room_with(tmp_path: Path, replace: dict[str, bytes]) -> Path:
     return folder
 
 
-def _fifth_depth() -> str:
-    lines = [ln for ln in (ROOM / "depth.txt").read_text().splitlines() if ln[:1].isdigit()]
+def _fifth_depth(list_name: str = "depth.txt") -> str:
+    lines = [ln for ln in (ROOM / list_name).read_text().splitlines() if ln[:1].isdigit()]
     return lines[4].split()[1]
 
 
@@ -132,15 +132,21 @@ def test_tum_folder_with_a_40000x40000_depth_png(tmp_path: Path, args: list[str]
     assert code == 1 and "Traceback" not in err and Path(depth).name in err
 
 
-def test_a_depth_png_of_another_size_than_the_camera_is_skipped(tmp_path: Path) -> None:
-    depth = _fifth_depth()
-    room = _room_with(tmp_path, {depth: _png(np.zeros((10, 10), np.uint16))})
+@pytest.mark.parametrize(
+    ("list_name", "image"),
+    [("depth.txt", np.zeros((10, 10), np.uint16)), ("rgb.txt", np.zeros((10, 10, 3), np.uint8))],
+)
+def test_a_frame_of_another_size_than_the_camera_is_skipped(
+    tmp_path: Path, list_name: str, image: np.ndarray
+) -> None:
+    name = _fifth_depth(list_name)
+    room = _room_with(tmp_path, {name: _png(image)})
     code, err, _, _ = _run(
         ["run", "odometry", str(room), "--out", str(tmp_path / "out"), "--max-frames", "8"],
         tmp_path,
     )
     assert code == 3 and "Traceback" not in err
-    assert Path(depth).name in err
+    assert f"{name}: is 10x10, the camera is 320x240" in err
 
 
 def _mcap_with_lying_depth(tmp_path: Path) -> Path:

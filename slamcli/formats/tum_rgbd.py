@@ -221,6 +221,7 @@ class TumRgbdSource(SourceBase):
             round(self.dt_offset * 1e9),
         )
         self._dfactor = np.float32(self.depth_factor)
+        self._camera_size_confirmed = False
 
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
@@ -483,10 +484,16 @@ class TumRgbdSource(SourceBase):
             log.warning("skipping %s: %s (listed at %s)", rel, reason, lst.where(k))
 
     def _load_rgb(self, k: int) -> NDArray[np.uint8] | None:
-        """Colour image ``k`` as (H, W, 3) uint8 RGB (undistorted if asked), or None if unusable."""
+        """Colour image ``k`` as (H, W, 3) uint8 RGB (undistorted if asked), or None if unusable.
+
+        The first colour image of another size than the camera is an InputError: the camera is
+        wrong. Once one image has matched, an odd-sized one is an unreadable frame, refused from
+        its header.
+        """
         import cv2
 
-        bgr, reason = self._imread(self.rgb_list, k, cv2.IMREAD_COLOR)
+        size = (self.camera.width, self.camera.height) if self._camera_size_confirmed else None
+        bgr, reason = self._imread(self.rgb_list, k, cv2.IMREAD_COLOR, expect=size)
         if bgr is None:
             self._unreadable(self.rgb_list, k, reason)
             return None
@@ -496,6 +503,7 @@ class TumRgbdSource(SourceBase):
                 f"the camera ({self.camera_source}) is {self.camera.width}x{self.camera.height}",
                 hint="give the right camera with --camera or a camera file next to the data",
             )
+        self._camera_size_confirmed = True
         rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB, dst=bgr)
         if self._remove_distortion:
             rgb = undistort_image(self.raw_camera, rgb)
