@@ -85,7 +85,7 @@ _DAMAGE = (McapError, struct.error, ValueError, RuntimeError, OSError)
 """What parsing damaged bytes raises: mcap and struct errors, bad UTF-8, lz4's RuntimeError."""
 _MB = 2**20
 _INFLATE_STEP = 16 * _MB
-"""Output bytes produced per decompression call, so a lying header costs at most one step."""
+"""Most output bytes asked of a streaming decompressor per call."""
 _BYTES_PER_RECORD = 256
 """A chunk may hold one record per this many bytes of ``max_chunk_bytes``: each message costs
 about 200 bytes of bookkeeping, and each record parsing time, whatever its own size."""
@@ -413,7 +413,7 @@ class McapLog(Closing):
         """A bounded decompression function, cached per pass: a zstd context is not thread-safe.
 
         Each one returns exactly ``uncompressed_size`` bytes or raises :class:`_BadChunkError`,
-        and never produces more than one step past that size, whatever the data claims.
+        and never produces more than one byte past that size, whatever the data claims.
         """
         known = cache.get(compression)
         if known is not None:
@@ -447,12 +447,7 @@ class McapLog(Closing):
                     try:
                         whole = dctx.decompress(data, max_output_size=uncompressed_size)
                     except zstandard.ZstdError as exc:
-                        if "too small" in str(exc):
-                            # libzstd's words for output that would pass the declared size.
-                            problem = _size_problem(uncompressed_size + 1, True, uncompressed_size)
-                        else:
-                            problem = f"does not decompress (zstd: {exc})"
-                        raise _BadChunkError(problem) from None
+                        raise _BadChunkError(_zstd_problem(exc, uncompressed_size)) from None
                     problem = _size_problem(len(whole), False, uncompressed_size)
                     if problem is not None:
                         del whole
@@ -474,7 +469,7 @@ class McapLog(Closing):
                         got += n
                     problem = _size_problem(got, bool(reader.read(1)), uncompressed_size)
                 except zstandard.ZstdError as exc:
-                    problem = f"does not decompress (zstd: {exc})"
+                    problem = _zstd_problem(exc, uncompressed_size)
                 del view
                 if problem is not None:
                     # Not raised while the buffer is alive: the traceback would keep it.
@@ -936,8 +931,16 @@ class McapLog(Closing):
                     self._unknown_channel(chan)
             elif op == _CHUNK:
                 if length < _CHUNK_HEAD.size:
-                    walker.broken_at = offset
-                    break
+                    # Too short to say which times it held: charged to the last time read.
+                    near = 0 if last_good is None else last_good
+                    self._bad_chunk(
+                        near,
+                        near,
+                        offset,
+                        f"is {length} bytes long, too short for a chunk header "
+                        f"({_CHUNK_HEAD.size} bytes)",
+                    )
+                    continue
                 if length > self._max_chunk_record:
                     start, end = struct.unpack("<QQ", f.read(16))
                     too_big = _over("is a chunk record of", length, self.max_chunk_bytes)
@@ -1047,6 +1050,13 @@ def _size_problem(got: int, more: bool, size: int) -> str | None:
     if got < size:
         return f"decompresses to {got} bytes, expected {size}"
     return None
+
+
+def _zstd_problem(exc: Exception, size: int) -> str:
+    if "too small" in str(exc):
+        # libzstd's words for output that would pass the declared size.
+        return f"decompresses to more than the {size} bytes it declares"
+    return f"does not decompress (zstd: {exc})"
 
 
 def _mb(n: int) -> str:
