@@ -418,3 +418,17 @@ def test_formats_without_a_checked_header_are_refused() -> None:
     assert ok
     img, reason = decode_image(tiff.tobytes())
     assert img is None and "not PNG, JPEG, PNM, BMP or WebP" in reason
+
+
+def test_an_npz_map_with_a_damaged_zip_field_is_a_format_error(tmp_path: Path) -> None:
+    from slamcli.formats.occupancy import read_map_npz, write_map_npz
+    from slamcli.types import OccupancyGrid
+
+    path = tmp_path / "map.npz"
+    write_map_npz(path, OccupancyGrid(np.zeros((4, 5), np.float32), 0.05, (0.0, 0.0, 0.0)))
+    data = bytearray(path.read_bytes())
+    entry = data.index(b"PK\x01\x02")
+    data[entry + 6 : entry + 8] = struct.pack("<H", 99)  # "version needed to extract": 9.9
+    path.write_bytes(bytes(data))
+    with pytest.raises(FormatError, match=r"map\.npz: is not a readable \.npz archive"):
+        read_map_npz(path)

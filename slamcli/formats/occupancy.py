@@ -761,8 +761,17 @@ def read_map_npz(path: str | Path) -> OccupancyGrid:
         raise
     except OSError as exc:
         raise FormatError(p, f"cannot be read ({exc.strerror or exc})") from exc
-    except (ValueError, EOFError, zipfile.BadZipFile, zlib.error) as exc:
+    except (
+        ValueError,
+        EOFError,
+        zipfile.BadZipFile,
+        zlib.error,
+        NotImplementedError,
+        RuntimeError,
+    ) as exc:
         # numpy's own words ("pickled data", "bad zip") say nothing about what a map should be.
+        # zipfile raises NotImplementedError for a damaged version or method field and
+        # RuntimeError for a damaged encryption flag.
         raise FormatError(
             p, f"is not a readable .npz archive: expected {_NPZ_EXPECTED}", hint=_NPZ_HINT
         ) from exc
