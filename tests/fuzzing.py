@@ -402,12 +402,16 @@ def inflate_int(data: bytes, rng: random.Random) -> tuple[bytes, str]:
 
 
 def _mcap_records(data: bytes) -> list[tuple[int, int, int]]:
-    """(offset, opcode, length) of the top-level records after the magic, as far as they parse."""
+    """(offset, opcode, length) of the data section's records, as far as they parse.
+
+    The walk stops at Data End; the summary section behind it is damaged by the byte-level
+    mutations (repeated ranges and inflated integers also shift and break its offsets).
+    """
     records, at = [], 8
     while at + 9 <= len(data):
         opcode, length = struct.unpack_from("<BQ", data, at)
         records.append((at, opcode, length))
-        if opcode == 0x0F:  # footer
+        if opcode == 0x0F:  # Data End
             break
         at += 9 + length
     return records
