@@ -785,10 +785,9 @@ def run_subprocess(argv: list[str], case_dir: Path) -> tuple[int | None, str, fl
     return proc.returncode, text, seconds, usage.ru_maxrss / 1024
 
 
-def _current_peak_reset() -> None:
+def _reset_peak_rss() -> None:
     """Reset this process's peak RSS (VmHWM) to its current RSS, so each case measures its own."""
-    with open("/proc/self/clear_refs", "w") as f:  # noqa: PTH123
-        f.write("5")
+    Path("/proc/self/clear_refs").write_text("5")
 
 
 def _peak_mb() -> float:
@@ -812,7 +811,7 @@ def run_in_process(argv: list[str], case_dir: Path) -> tuple[int | None, str, fl
 
     from slamcli.cli.app import app
 
-    _current_peak_reset()
+    _reset_peak_rss()
     start = time.monotonic()
     signal.alarm(int(WALL_LIMIT_S * 2))
     cwd = Path.cwd()
@@ -828,7 +827,7 @@ def run_in_process(argv: list[str], case_dir: Path) -> tuple[int | None, str, fl
     text = result.output
     code: int | None = result.exit_code
     if result.exception is not None and not isinstance(result.exception, SystemExit):
-        text += "\n" + "".join(traceback.format_exception(*result.exc_info))  # type: ignore[misc]
+        text += "\n" + "".join(traceback.format_exception(result.exception))
         code = None if isinstance(result.exception, _CaseTimeout) else code
     return code, text, seconds, _peak_mb()
 
