@@ -77,28 +77,8 @@ FOUND_CASES = [
     pytest.param(0, 1365, id="euroc-stamp-1e308"),
     pytest.param(0, 2683, id="landmark-odometry-1e308"),
     pytest.param(0, 9682, id="g2o-id-huge-integer"),
-    # Found and not fixed yet: each reports its file and passes once that file is fixed.
-    pytest.param(
-        0,
-        47,
-        marks=pytest.mark.xfail(
-            reason="formats/mcap/reader.py: a message index repeated shifts the summary, and "
-            "_read_summary skips a record with a huge length by stream.read(rest), which raises "
-            "OverflowError (a traceback, exit 1)",
-            strict=False,
-        ),
-        id="mcap-repeated-message-index",
-    ),
-    pytest.param(
-        0,
-        1702,
-        marks=pytest.mark.xfail(
-            reason="formats/images.py: a NUL byte in an image path of depth.txt raises "
-            "ValueError('embedded null byte') in read_image_file (a traceback, exit 1)",
-            strict=False,
-        ),
-        id="tum-list-nul-in-image-path",
-    ),
+    pytest.param(0, 47, id="mcap-repeated-message-index"),
+    pytest.param(0, 1702, id="tum-list-nul-in-image-path"),
 ]
 
 

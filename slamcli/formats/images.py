@@ -165,6 +165,9 @@ def read_image_file(path: Path) -> tuple[bytes | None, str]:
         return None, "is a folder"
     except OSError as exc:
         return None, f"cannot be read ({exc.strerror})"
+    except ValueError:
+        # A damaged list can name a path holding a NUL byte, which no file system accepts.
+        return None, "has a name with a NUL byte"
 
 
 def size_problem(

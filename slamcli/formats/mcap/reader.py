@@ -351,6 +351,11 @@ class McapLog(Closing):
             rest = length - (stream.count - body_start)
             if rest < 0:
                 raise _BadChunkError(f"record with opcode {op:#04x} overruns its length")
+            if rest > len(data) - stream.count:
+                raise _BadChunkError(
+                    f"record with opcode {op:#04x} declares {length} bytes, more than the "
+                    f"summary section holds"
+                )
             stream.read(rest)
         for channel in channels:
             self._add_channel(channel)
