@@ -14,6 +14,7 @@ import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -52,13 +53,9 @@ def room(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def zeros_zstd(n: int, *, content_size: bool = True) -> bytes:
-    """``n`` zero bytes as one zstd frame, compressed in 64 MB steps (a few hundred kB)."""
-    import zstandard
-
+def _zeros_in_steps(comp: Any, n: int) -> bytes:
+    """``n`` zero bytes through a streaming compressor, fed 64 MB at a time."""
     out = io.BytesIO()
-    cctx = zstandard.ZstdCompressor(level=1, write_content_size=content_size)
-    comp = cctx.compressobj(size=n if content_size else -1)
     block = bytes(64 * MB)
     left = n
     while left:
@@ -67,6 +64,14 @@ def zeros_zstd(n: int, *, content_size: bool = True) -> bytes:
         left -= k
     out.write(comp.flush())
     return out.getvalue()
+
+
+def zeros_zstd(n: int, *, content_size: bool = True) -> bytes:
+    """``n`` zero bytes as one zstd frame, compressed in 64 MB steps (a few hundred kB)."""
+    import zstandard
+
+    cctx = zstandard.ZstdCompressor(level=1, write_content_size=content_size)
+    return _zeros_in_steps(cctx.compressobj(size=n if content_size else -1), n)
 
 
 def zeros_lz4(n: int) -> bytes:
@@ -74,16 +79,7 @@ def zeros_lz4(n: int) -> bytes:
     import lz4.frame
 
     comp = lz4.frame.LZ4FrameCompressor()
-    out = io.BytesIO()
-    out.write(comp.begin(source_size=n))
-    block = bytes(64 * MB)
-    left = n
-    while left:
-        k = min(len(block), left)
-        out.write(comp.compress(block if k == len(block) else block[:k]))
-        left -= k
-    out.write(comp.flush())
-    return out.getvalue()
+    return comp.begin(source_size=n) + _zeros_in_steps(comp, n)
 
 
 def with_chunk(
