@@ -450,14 +450,7 @@ def test_real_odometry_matches_message_fields() -> None:
         reader = make_reader(fh)
         for schema, channel, message in reader.iter_messages(topics=["/odom", "/amcl_pose"]):
             assert schema is not None
-            info = ChannelInfo(
-                channel.id,
-                channel.topic,
-                channel.message_encoding,
-                schema.name,
-                schema.encoding,
-                schema.data,
-            )
+            info = ChannelInfo.from_records(channel, schema)
             msg = decoder_for(info)(message.data)
             adapter = adapter_for(schema.name)
             assert adapter is not None

@@ -74,15 +74,7 @@ def test_real_log_every_message_matches_reference_deserialisation() -> None:
     with path.open("rb") as fh:
         for schema, channel, message in make_reader(fh).iter_messages():
             assert schema is not None
-            info = ChannelInfo(
-                channel.id,
-                channel.topic,
-                channel.message_encoding,
-                schema.name,
-                schema.encoding,
-                schema.data,
-                dict(channel.metadata),
-            )
+            info = ChannelInfo.from_records(channel, schema)
             decoded = decoder_for(info)(message.data)
             # The reference uses rosbags' bundled Humble definitions, not the log's schema text.
             expected = reference.deserialize_cdr(message.data, schema.name)

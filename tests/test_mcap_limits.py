@@ -397,14 +397,7 @@ def _first_messages(path: Path) -> list[tuple[ChannelInfo, bytes]]:
             if channel.topic in seen or schema is None:
                 continue
             seen.add(channel.topic)
-            info = ChannelInfo(
-                channel.id,
-                channel.topic,
-                channel.message_encoding,
-                schema.name,
-                schema.encoding,
-                schema.data,
-            )
+            info = ChannelInfo.from_records(channel, schema)
             out.append((info, message.data))
     return out
 

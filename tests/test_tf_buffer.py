@@ -182,14 +182,7 @@ def test_real_log_tree_resolves() -> None:
     with path.open("rb") as fh:
         for schema, channel, message in make_reader(fh).iter_messages(topics=["/tf", "/tf_static"]):
             assert schema is not None
-            info = ChannelInfo(
-                channel.id,
-                channel.topic,
-                channel.message_encoding,
-                schema.name,
-                schema.encoding,
-                schema.data,
-            )
+            info = ChannelInfo.from_records(channel, schema)
             adapter = adapter_for(schema.name)
             assert adapter is not None
             record = adapter(decoder_for(info)(message.data), message.log_time, channel.topic)

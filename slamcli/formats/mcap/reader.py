@@ -385,15 +385,7 @@ class McapLog(Closing):
                 channel.topic,
                 channel.schema_id,
             )
-        info = ChannelInfo(
-            id=channel.id,
-            topic=channel.topic,
-            message_encoding=channel.message_encoding,
-            schema_name=schema.name if schema is not None else "",
-            schema_encoding=schema.encoding if schema is not None else "",
-            schema_data=schema.data if schema is not None else b"",
-            metadata=dict(channel.metadata),
-        )
+        info = ChannelInfo.from_records(channel, schema)
         self._channels[channel.id] = info
         return info
 

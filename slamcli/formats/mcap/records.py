@@ -29,6 +29,19 @@ class ChannelInfo:
     schema_data: bytes = b""
     metadata: dict[str, str] = field(default_factory=dict)
 
+    @classmethod
+    def from_records(cls, channel: Any, schema: Any | None) -> ChannelInfo:
+        """From the ``mcap`` package's Channel and Schema records (schema None: schemaless)."""
+        return cls(
+            id=channel.id,
+            topic=channel.topic,
+            message_encoding=channel.message_encoding,
+            schema_name=schema.name if schema is not None else "",
+            schema_encoding=schema.encoding if schema is not None else "",
+            schema_data=schema.data if schema is not None else b"",
+            metadata=dict(channel.metadata),
+        )
+
 
 @dataclass(frozen=True)
 class RawMessage:
