@@ -4,6 +4,10 @@
 An edge's information matrix is stored as its upper triangle, row by row (6 numbers in 2-D,
 21 in 3-D). ``FIX id`` lines name vertices held fixed. Vertices may be absent (a file of edges
 only, like Manhattan): then the graph's pose ids are those its edges name.
+
+:func:`write_g2o` writes a :class:`PoseGraph` back (either dimension) and :func:`write_g2o_se3`
+builds one from (4, 4) matrices; both write atomically, with every number in Python's shortest
+round-trip form so that reading the file gives back the same float64 values.
 """
 
 from __future__ import annotations
@@ -15,8 +19,10 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.atomic import write_text_atomic
 from slamcli.errors import FormatError
 from slamcli.formats.text import iter_data_lines, parse_count, parse_floats
+from slamcli.geometry.se3 import matrix_to_quat_xyzw
 
 # Tag -> (dimension, number of values after the ids, number of ids).
 _TAGS = {
@@ -130,3 +136,110 @@ def read_g2o(path: str | Path) -> PoseGraph:
 
 def _id(text: str, path: Path, line: int, column: int) -> int:
     return parse_count(text, path, line, f"column {column}: vertex id")
+
+
+def write_g2o(path: str | Path, graph: PoseGraph) -> Path:
+    """Write ``graph`` (2-D or 3-D) to ``path`` atomically: vertices, edges, then FIX lines.
+
+    ``graph.path`` is ignored. Information matrices are written as their upper triangle, row by
+    row, as :func:`read_g2o` reads them; ``read_g2o(write_g2o(p, g))`` returns ``g``'s arrays.
+
+    Raises:
+        ValueError: arrays of the wrong shape for ``graph.dim``, or non-finite values.
+    """
+    if graph.dim not in (2, 3):
+        raise ValueError(f"g2o graphs are 2-D or 3-D, got dim={graph.dim}")
+    vertex_tag, edge_tag = (
+        ("VERTEX_SE2", "EDGE_SE2")
+        if graph.dim == 2
+        else (
+            "VERTEX_SE3:QUAT",
+            "EDGE_SE3:QUAT",
+        )
+    )
+    width, size = (3, 3) if graph.dim == 2 else (7, 6)
+    ids = np.asarray(graph.vertex_ids, dtype=np.int64)
+    poses = np.asarray(graph.poses, dtype=np.float64)
+    edges = np.asarray(graph.edges, dtype=np.int64)
+    measurements = np.asarray(graph.measurements, dtype=np.float64)
+    information = np.asarray(graph.information, dtype=np.float64)
+    n_edges = edges.shape[0] if edges.ndim == 2 else -1
+    expected = {
+        "vertex_ids": (ids.shape, (ids.size,)),
+        "poses": (poses.shape, (ids.size, width)),
+        "edges": (edges.shape, (n_edges, 2)),
+        "measurements": (measurements.shape, (n_edges, width)),
+        "information": (information.shape, (n_edges, size, size)),
+    }
+    for name, (shape, want) in expected.items():
+        if shape != want:
+            raise ValueError(
+                f"{name} must have shape {want} for a {graph.dim}-D graph, got {shape}"
+            )
+    for name, values in (("poses", poses), ("measurements", measurements)):
+        if not np.isfinite(values).all():
+            raise ValueError(f"{name} has non-finite values: g2o files hold finite numbers only")
+    if not np.isfinite(information).all():
+        raise ValueError("information has non-finite values: g2o files hold finite numbers only")
+    if (ids < 0).any() or (edges < 0).any():
+        raise ValueError("vertex ids must be >= 0")
+    upper = np.triu_indices(size)
+    lines = [f"{vertex_tag} {i} {_numbers(p)}" for i, p in zip(ids.tolist(), poses, strict=True)]
+    lines += [
+        f"{edge_tag} {a} {b} {_numbers(m)} {_numbers(info[upper])}"
+        for (a, b), m, info in zip(edges.tolist(), measurements, information, strict=True)
+    ]
+    lines += [f"FIX {int(f)}" for f in graph.fixed]
+    return write_text_atomic(path, "\n".join(lines) + "\n")
+
+
+def write_g2o_se3(
+    path: str | Path,
+    poses: NDArray[np.float64],
+    edges: NDArray[np.int64],
+    measurements: NDArray[np.float64],
+    information: NDArray[np.float64] | None = None,
+    *,
+    vertex_ids: NDArray[np.int64] | None = None,
+    fixed: tuple[int, ...] = (),
+) -> Path:
+    """Write a 3-D pose graph from matrices (atomically); returns the path.
+
+    Args:
+        poses: (V, 4, 4) float64 ``world_from_vertex`` rigid transforms.
+        edges: (E, 2) int64 (from, to) vertex ids.
+        measurements: (E, 4, 4) float64 ``from_from_to`` relative transforms.
+        information: (E, 6, 6) float64 in g2o's own convention (translation first, rotation
+            measured by the quaternion's vector part), or None for identity.
+            :func:`slamcli.pose_graph.save_g2o` converts from GTSAM's order.
+        vertex_ids: (V,) ids of the vertices; default ``0..V-1``.
+        fixed: ids written as ``FIX`` lines.
+    """
+    t = np.asarray(poses, dtype=np.float64)
+    m = np.asarray(measurements, dtype=np.float64)
+    for name, arr in (("poses", t), ("measurements", m)):
+        if arr.ndim != 3 or arr.shape[1:] != (4, 4):
+            raise ValueError(f"{name} must have shape (N, 4, 4), got {arr.shape}")
+    info = np.broadcast_to(np.eye(6), (len(m), 6, 6)) if information is None else information
+    return write_g2o(
+        path,
+        PoseGraph(
+            dim=3,
+            vertex_ids=np.arange(len(t), dtype=np.int64) if vertex_ids is None else vertex_ids,
+            poses=_se3_values(t),
+            edges=np.asarray(edges, dtype=np.int64),
+            measurements=_se3_values(m),
+            information=np.asarray(info, dtype=np.float64),
+            fixed=tuple(fixed),
+            path=Path(path),
+        ),
+    )
+
+
+def _se3_values(transforms: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 4, 4) -> (N, 7) ``x y z qx qy qz qw`` rows."""
+    return np.concatenate([transforms[:, :3, 3], matrix_to_quat_xyzw(transforms)], axis=-1)
+
+
+def _numbers(values: NDArray[np.float64]) -> str:
+    return " ".join(repr(v) for v in values.tolist())
