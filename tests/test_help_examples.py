@@ -30,6 +30,8 @@ ORDER = [
     "demo",
     "synth rgbd",
     "synth landmarks",
+    "vocab train",
+    "vocab info",
     "run odometry",
     "run dense",
     "run ekf",

@@ -53,9 +53,22 @@ def _register() -> None:
         plan,
         run,
         synth,
+        vocab,
     )
 
-    for module in (demo, run, config_cmd, info, evaluate, synth, convert, mesh, map_cmd, plan):
+    for module in (
+        demo,
+        run,
+        config_cmd,
+        info,
+        evaluate,
+        synth,
+        convert,
+        mesh,
+        map_cmd,
+        plan,
+        vocab,
+    ):
         module.register(app)
 
 
