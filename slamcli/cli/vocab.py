@@ -83,6 +83,14 @@ def train(
     ] = None,
     every: Annotated[int, typer.Option("--every", min=1, help="Use every K-th image.")] = 1,
     seed: Annotated[int, typer.Option("--seed", help="Seeds the clustering.")] = 0,
+    rgb_topic: Annotated[
+        str | None,
+        typer.Option(
+            "--rgb-topic",
+            help="Image topic of MCAP inputs (default: their only image topic).",
+            show_default=False,
+        ),
+    ] = None,
     force: Annotated[bool, typer.Option("--force", help="Overwrite an existing --out.")] = False,
 ) -> None:
     """Train an ORB vocabulary tree on images and save it as one .npz."""
@@ -101,7 +109,12 @@ def train(
     started = time.perf_counter()
     with render.progress("extracting ORB") as progress:
         images = extract_training_descriptors(
-            inputs, features=features, every=every, max_frames=max_frames, progress=progress
+            inputs,
+            features=features,
+            every=every,
+            max_frames=max_frames,
+            rgb_topic=rgb_topic,
+            progress=progress,
         )
     where = ", ".join(map(str, inputs))
     if not images.names:

@@ -795,6 +795,7 @@ def extract_training_descriptors(
     features: int = 1000,
     every: int = 1,
     max_frames: int | None = None,
+    rgb_topic: str | None = None,
     progress: ProgressFn | None = None,
 ) -> TrainingImages:
     """ORB descriptors of every ``every``-th image of each input, for :meth:`Vocabulary.train`.
@@ -805,6 +806,7 @@ def extract_training_descriptors(
         features: ORB features per image (``cv2.ORB`` with 8 levels, scale 1.2, on grey).
         every: use every K-th image of each input (the first is always used).
         max_frames: at most this many images from each input.
+        rgb_topic: the image topic of MCAP inputs (default: the one image topic they have).
         progress: called as ``progress(done, total)`` per image used; ``total`` is None when an
             input is a log whose length is not known up front.
 
@@ -839,7 +841,9 @@ def extract_training_descriptors(
     for path, files in plans:
         used = 0
         if files is None:
-            used = _from_source(path, every, max_frames, cv2, use)
+            used = _from_source(
+                path, every, max_frames, rgb_topic, cv2, use, result.not_8bit.append
+            )
         else:
             named = len(files) == 1 and files[0] == path
             for i, file in enumerate(files):
@@ -870,34 +874,54 @@ def _read_grey(path: Path, cv2: Any) -> tuple[U8 | None, str]:
         return None, reason
     if img.dtype != np.uint8:
         return None, "not 8-bit"
-    if img.ndim == 3 and img.shape[2] == 4:
-        return cv2.cvtColor(img, cv2.COLOR_BGRA2GRAY), ""
-    if img.ndim == 3 and img.shape[2] == 3:
-        return cv2.cvtColor(img, cv2.COLOR_BGR2GRAY), ""
+    gray = _grey(img, cv2, rgb=False)
+    return (gray, "") if gray is not None else (None, f"has an unsupported layout {img.shape}")
+
+
+def _grey(img: NDArray[Any], cv2: Any, *, rgb: bool) -> U8 | None:
+    """(H, W) uint8 grey from a grey, RGB/BGR or RGBA/BGRA uint8 image; None for other shapes."""
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
     if img.ndim == 2:
-        return img, ""
-    return None, f"has an unsupported layout {img.shape}"
+        return np.ascontiguousarray(img)
+    if img.ndim == 3 and img.shape[2] in (3, 4):
+        codes = {
+            (3, True): cv2.COLOR_RGB2GRAY,
+            (4, True): cv2.COLOR_RGBA2GRAY,
+            (3, False): cv2.COLOR_BGR2GRAY,
+            (4, False): cv2.COLOR_BGRA2GRAY,
+        }
+        return np.asarray(cv2.cvtColor(img, codes[img.shape[2], rgb]), dtype=np.uint8)
+    return None
 
 
 def _from_source(
     path: Path,
     every: int,
     max_frames: int | None,
+    rgb_topic: str | None,
     cv2: Any,
     use: Callable[[str, U8], None],
+    not_8bit: Callable[[str], None],
 ) -> int:
-    from slamcli.formats import open_source
+    from slamcli.formats import open_source, sniff
     from slamcli.types import ImageFrame
 
     used = 0
-    with open_source(path) as source:
+    options = {"rgb_topic": rgb_topic} if rgb_topic and sniff.mcap(path) else {}
+    with open_source(path, **options) as source:
         for i, frame in enumerate(source.frames(("image",))):
             if max_frames is not None and used >= max_frames:
                 break
             if i % every or not isinstance(frame, ImageFrame):
                 continue
-            img = frame.image
-            gray = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY) if img.ndim == 3 else img
-            use(f"{path}:{frame.name or frame.stamp_ns}", np.ascontiguousarray(gray))
+            img, name = frame.image, f"{path}:{frame.name or frame.stamp_ns}"
+            if img.dtype != np.uint8:
+                not_8bit(name)
+                continue
+            gray = _grey(img, cv2, rgb=True)
+            if gray is None:
+                continue
+            use(name, gray)
             used += 1
     return used
