@@ -23,12 +23,13 @@ from __future__ import annotations
 
 import functools
 import io
+import itertools
 import logging
 import math
 import zipfile
 import zlib
 from collections import deque
-from collections.abc import Callable, Collection, Iterable, Sequence
+from collections.abc import Callable, Collection, Sequence
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -704,7 +705,9 @@ class KeyframeDatabase:
         if len(bow) == 0 or not self._bows:
             return []
         lists = [self._index[w] for w in bow.words.tolist() if w < len(self._index)]
-        hits = np.fromiter(_chain(lists), dtype=np.int64)
+        hits = np.fromiter(
+            itertools.chain.from_iterable(lists), dtype=np.int64, count=sum(map(len, lists))
+        )
         if exclude and hits.size:
             hits = hits[~np.isin(hits, np.fromiter(exclude, dtype=np.int64))]
         if hits.size == 0:
@@ -721,11 +724,6 @@ class KeyframeDatabase:
             scored.append((kf, min(max(s, 0.0), 1.0)))
         scored.sort(key=lambda r: (-r[1], r[0]))
         return scored if max_results is None else scored[:max_results]
-
-
-def _chain(lists: Iterable[list[int]]) -> Iterable[int]:
-    for lst in lists:
-        yield from lst
 
 
 # -- training data from images and logs -----------------------------------------------------
