@@ -60,7 +60,6 @@ def train(
         typer.Argument(
             help="Images, image folders, TUM RGB-D folders or MCAP logs.",
             show_default=False,
-            metavar="INPUT...",
         ),
     ],
     out: Annotated[
