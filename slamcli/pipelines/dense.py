@@ -38,9 +38,13 @@ from numpy.typing import NDArray
 from slamcli.config import setting
 from slamcli.errors import ConfigError, PipelineError
 from slamcli.geometry import compose, inverse, rotation_angle
-from slamcli.geometry.camera import undistort_image, unproject
+from slamcli.geometry.camera import undistort_image
 from slamcli.pipelines.rgbd_odometry import rgbd_odometry_multi_scale
 from slamcli.types import PinholeCamera, RgbdFrame, SlamResult, Trajectory, TriangleMesh
+from slamcli.vision.features import lift
+from slamcli.vision.gates import pnp_opencv
+from slamcli.vision.matching import match_ratio
+from slamcli.vision.pnp import pose_change, within
 
 log = logging.getLogger(__name__)
 
@@ -484,7 +488,7 @@ class DenseSlam:
             valid_fraction=valid_fraction,
             keypoints=keypoints,
             descriptors=desc,
-            points_cam=_lift(keypoints, depth, camera),
+            points_cam=lift(keypoints, depth, camera),
             small=self._tracking_image(rgb, depth),
         )
 
@@ -538,11 +542,8 @@ class DenseSlam:
         last = self._keyframes[-1]
         if cur.index - last.frame.index >= self.config.keyframe_every:
             return True
-        rel = compose(inverse(last.world_from_cam), pose)
-        return bool(
-            np.linalg.norm(rel[:3, 3]) >= self.config.keyframe_min_m
-            or math.degrees(rotation_angle(rel)) >= self.config.keyframe_min_deg
-        )
+        moved_m, turned_deg = pose_change(last.world_from_cam, pose)
+        return moved_m >= self.config.keyframe_min_m or turned_deg >= self.config.keyframe_min_deg
 
     def _add_keyframe(self, cur: _Frame, pose: F64) -> None:
         kf = _Keyframe(len(self._keyframes), cur, pose.copy())
@@ -556,13 +557,14 @@ class DenseSlam:
         for old in self._keyframes[:-1]:
             if kf.frame.index - old.frame.index < cfg.loop_min_frames:
                 continue
-            rel = compose(inverse(old.world_from_cam), kf.world_from_cam)
-            if (
-                np.linalg.norm(rel[:3, 3]) > cfg.loop_max_distance_m
-                or math.degrees(rotation_angle(rel)) > cfg.loop_max_angle_deg
+            if not within(
+                old.world_from_cam,
+                kf.world_from_cam,
+                cfg.loop_max_distance_m,
+                cfg.loop_max_angle_deg,
             ):
                 continue
-            matches = _match(old.frame.descriptors, kf.frame.descriptors, cfg.match_ratio)
+            matches = match_ratio(old.frame.descriptors, kf.frame.descriptors, cfg.match_ratio)
             ratio = len(matches) / max(
                 1, min(len(old.frame.descriptors), len(kf.frame.descriptors))
             )
@@ -665,39 +667,25 @@ class DenseSlam:
         The inlier count of the last attempt is left in ``self._pnp_inliers``.
         """
         self._pnp_inliers = 0
-        import cv2
-
+        cfg = self.config
         assert self._camera is not None
         usable = np.isfinite(ref.points_cam[:, 0])
         if np.count_nonzero(usable) < min_inliers or len(cur.descriptors) < min_inliers:
             return None
         idx = np.flatnonzero(usable)
-        matches = _match(ref.descriptors[idx], cur.descriptors, self.config.match_ratio)
+        matches = match_ratio(ref.descriptors[idx], cur.descriptors, cfg.match_ratio)
         if len(matches) < min_inliers:
             return None
-        obj = ref.points_cam[idx[matches[:, 0]]]
-        img = cur.keypoints[matches[:, 1]].astype(np.float64)
-        cv2.setRNGSeed(self.config.seed)
-        ok, rvec, tvec, inliers = cv2.solvePnPRansac(
-            obj,
-            img,
+        ref_from_cur, self._pnp_inliers = pnp_opencv(
+            ref.points_cam[idx[matches[:, 0]]],
+            cur.keypoints[matches[:, 1]].astype(np.float64),
             self._camera.K,
-            None,
-            iterationsCount=self.config.pnp_iterations,
-            reprojectionError=self.config.pnp_reprojection_px,
-            confidence=0.999,
-            flags=cv2.SOLVEPNP_EPNP,
+            seed=cfg.seed,
+            iterations=cfg.pnp_iterations,
+            threshold_px=cfg.pnp_reprojection_px,
+            min_inliers=min_inliers,
         )
-        if not ok or inliers is None or len(inliers) < min_inliers:
-            self._pnp_inliers = 0 if inliers is None else len(inliers)
-            return None
-        inl = inliers.reshape(-1)
-        self._pnp_inliers = len(inl)
-        rvec, tvec = cv2.solvePnPRefineLM(obj[inl], img[inl], self._camera.K, None, rvec, tvec)
-        cur_from_ref = np.eye(4)
-        cur_from_ref[:3, :3] = cv2.Rodrigues(rvec)[0]
-        cur_from_ref[:3, 3] = tvec.reshape(3)
-        return inverse(cur_from_ref)
+        return ref_from_cur
 
     def _refine_model(self, cur: _Frame, seed_pose: F64) -> F64 | None:
         """Register ``cur`` to a ray cast of the volume seen from ``seed_pose``."""
@@ -750,22 +738,16 @@ class DenseSlam:
         if not self._plausible(pose, predicted):
             self._counts["rejected_jump"] += 1
             return False
-        if seed_pose is not None:
-            diff = compose(inverse(seed_pose), pose)
-            if (
-                np.linalg.norm(diff[:3, 3]) > self.config.max_seed_disagreement_m
-                or math.degrees(rotation_angle(diff)) > self.config.max_seed_disagreement_deg
-            ):
-                self._counts["rejected_seed_disagreement"] += 1
-                return False
+        cfg = self.config
+        if seed_pose is not None and not within(
+            seed_pose, pose, cfg.max_seed_disagreement_m, cfg.max_seed_disagreement_deg
+        ):
+            self._counts["rejected_seed_disagreement"] += 1
+            return False
         return True
 
     def _plausible(self, pose: F64, predicted: F64) -> bool:
-        jump = compose(inverse(predicted), pose)
-        return bool(
-            np.linalg.norm(jump[:3, 3]) <= self.config.max_jump_m
-            and math.degrees(rotation_angle(jump)) <= self.config.max_jump_deg
-        )
+        return within(predicted, pose, self.config.max_jump_m, self.config.max_jump_deg)
 
     def _relocalise(self, cur: _Frame) -> F64 | None:
         """Pose from PnP against the latest keyframes, most inliers first; None if none fits."""
@@ -812,16 +794,15 @@ class DenseSlam:
             return record
         refined = np.asarray(result.transformation.numpy(), dtype=np.float64)
         record["fitness"] = round(float(result.fitness), 4)
-        diff = compose(inverse(old_from_cur), refined)
-        record["pnp_vs_dense_m"] = round(float(np.linalg.norm(diff[:3, 3])), 5)
-        drift = compose(inverse(compose(old.world_from_cam, refined)), kf.world_from_cam)
-        record["drift_m"] = round(float(np.linalg.norm(drift[:3, 3])), 5)
-        record["drift_deg"] = round(math.degrees(rotation_angle(drift)), 4)
+        disagree_m, disagree_deg = pose_change(old_from_cur, refined)
+        record["pnp_vs_dense_m"] = round(disagree_m, 5)
+        drift_m, drift_deg = pose_change(compose(old.world_from_cam, refined), kf.world_from_cam)
+        record["drift_m"] = round(drift_m, 5)
+        record["drift_deg"] = round(drift_deg, 4)
         if result.fitness < cfg.loop_min_fitness:
             record["reason"] = f"fitness below {cfg.loop_min_fitness}"
         elif (
-            np.linalg.norm(diff[:3, 3]) > cfg.loop_max_disagreement_m
-            or math.degrees(rotation_angle(diff)) > cfg.loop_max_disagreement_deg
+            disagree_m > cfg.loop_max_disagreement_m or disagree_deg > cfg.loop_max_disagreement_deg
         ):
             record["reason"] = "PnP and RGB-D odometry disagree"
         else:
@@ -1049,31 +1030,6 @@ _RANGE_TILE = 8
 
 def _to_uint8(colours: NDArray[Any]) -> NDArray[np.uint8]:
     return np.asarray(np.clip(np.rint(colours * 255.0), 0, 255), dtype=np.uint8)
-
-
-def _lift(keypoints: NDArray[np.float32], depth: NDArray[np.float32], cam: PinholeCamera) -> F64:
-    """(M, 3) camera-frame points under the keypoints (M, 2); NaN rows where depth is 0."""
-    h, w = depth.shape
-    u = np.clip(np.rint(keypoints[:, 0]).astype(np.int64), 0, w - 1)
-    v = np.clip(np.rint(keypoints[:, 1]).astype(np.int64), 0, h - 1)
-    z = depth[v, u].astype(np.float64)
-    z[z <= 0] = np.nan
-    return unproject(cam, keypoints, z)
-
-
-def _match(desc_a: NDArray[np.uint8], desc_b: NDArray[np.uint8], ratio: float) -> NDArray[np.int64]:
-    """(K, 2) index pairs (a, b) of ORB matches passing Lowe's ratio test, one per b."""
-    import cv2
-
-    if len(desc_a) < 2 or len(desc_b) < 1:
-        return np.zeros((0, 2), dtype=np.int64)
-    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(desc_b, desc_a, k=2)
-    good = [
-        (m[0].trainIdx, m[0].queryIdx)
-        for m in pairs
-        if len(m) == 2 and m[0].distance < ratio * m[1].distance
-    ]
-    return np.array(good, dtype=np.int64).reshape(-1, 2)
 
 
 def _open3d() -> Any:
