@@ -1,0 +1,1591 @@
+"""Feature-based visual SLAM (ORB-SLAM-like), RGB-D or monocular, offline and deterministic.
+
+Per frame (``process``):
+
+- **Features.** ORB spread over the image and 8 pyramid levels (:mod:`slamcli.vision.features`);
+  keypoints, not images, are undistorted. With ``threads = 2`` the next frame's features are
+  extracted on the second core while the current one is tracked (the extraction is a pure
+  function of the image, so the order of results never changes).
+- **Tracking.** The pose is predicted by a constant-velocity model, the last frame's points
+  (map points and, RGB-D, its keypoints lifted with depth) are searched by projection, and the
+  pose is refined with a robust (Cauchy) loss; failing that, the reference keyframe's points are
+  matched by appearance and the pose found by LO-RANSAC PnP (pycolmap); failing that, the frame
+  is relocalised against all keyframes by place recognition and PnP. The local map (the points
+  of the keyframes that share points with the frame, and their best neighbours) is then searched
+  by projection and the pose refined again.
+- **Keyframes** as ORB-SLAM decides them: when the frame tracks fewer than
+  ``keyframe_track_ratio`` of the reference keyframe's well-seen points (RGB-D: also when too
+  few near points are tracked), or ``keyframe_max_frames`` frames have passed.
+- **Local mapping** on each keyframe: new points from depth (RGB-D) or by triangulation with
+  its covisible keyframes with parallax and reprojection checks (monocular), fusion of duplicate
+  points with the neighbours, culling of points seldom found where predicted, local bundle
+  adjustment (pycolmap/Ceres) of the keyframe and its covisible neighbours with the keyframes
+  that also see their points held fixed, and culling of keyframes whose points are seen by
+  three others.
+- **Place recognition** (:mod:`slamcli.vision.vocabulary`): each keyframe's bag of words is
+  queried against the database; candidates must score above the keyframe's worst covisible
+  neighbour, be consistent over ``loop_consistency`` consecutive keyframes, and pass
+  geometric verification (PnP for RGB-D, Sim(3) for monocular) followed by a guided search.
+  A verified loop fuses the duplicated points and optimises the essential graph (spanning tree,
+  strong covisibility edges and loops; SE(3) or Sim(3), GTSAM), then a global bundle
+  adjustment. A place recognised in another map merges the two maps.
+- **Lost tracking** never aborts the run: a lost frame is relocalised; when that fails for
+  ``new_map_after_lost`` frames a new map is started, and merged when a place is recognised.
+
+``finish`` runs a last global bundle adjustment and re-estimates every frame's pose against
+the final map (an offline tool can afford it), then returns the trajectory of every frame in
+the main map (the one of the first keyframe, with all maps merged into it), the keyframes, the
+coloured points, the pose graph, and counts of frames by tracking state, maps, merges and loop
+closures with their scores and reasons.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections import defaultdict
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.config import setting
+from slamcli.errors import ConfigError, InputError, PipelineError
+from slamcli.geometry import inverse
+from slamcli.pipelines.visual_map import Keyframe, SparseMap
+from slamcli.types import ImageFrame, PinholeCamera, RgbdFrame, SlamResult, Trajectory
+from slamcli.vision.features import Features, OrbSettings, depth_at, extract_orb
+from slamcli.vision.matching import TH_HIGH, TH_LOW, match_by_projection, match_ratio
+from slamcli.vision.pnp import (
+    PoseEstimate,
+    absolute_pose,
+    pose_change,
+    refine_pose,
+    refine_pose_depth,
+)
+from slamcli.vision.two_view import triangulate_checked, two_view_geometry
+
+log = logging.getLogger(__name__)
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+_CHI2_2D = 5.991
+# Virtual stereo baseline of an RGB-D keypoint's depth (ORB-SLAM's bf / fx for a Kinect).
+_BASELINE_M = 0.08
+
+
+@dataclass(frozen=True)
+class VisualConfig:
+    """Settings of :class:`VisualSlam`. Lengths in metres, angles in degrees."""
+
+    mode: str = setting(
+        "auto",
+        help="rgbd uses depth, mono colour only (a map without metric scale, scored after "
+        "Sim(3) alignment); auto picks rgbd when the input has depth",
+        choices=("auto", "rgbd", "mono"),
+    )
+    max_features: int = setting(1000, help="ORB features per frame", min=100, max=20000)
+    levels: int = setting(8, help="ORB pyramid levels", min=1, max=12)
+    scale_factor: float = setting(1.2, help="ORB pyramid scale between levels", gt=1.0, max=2.0)
+    fast_threshold: int = setting(
+        12, help="FAST corner threshold; corners are ranked and spread afterwards", min=1, max=100
+    )
+    depth_min_m: float = setting(0.1, help="depth readings nearer than this are ignored", unit="m")
+    depth_max_m: float = setting(
+        4.0, help="depth readings further than this are ignored", unit="m", gt=0.0
+    )
+    keyframe_track_ratio: float = setting(
+        0.75,
+        help="a keyframe is made when a frame tracks fewer than this share of its reference "
+        "keyframe's points (monocular: at least 0.9)",
+        gt=0.0,
+        max=1.0,
+    )
+    keyframe_max_frames: int = setting(
+        10, help="a keyframe is made at least this often (frames)", min=1
+    )
+    local_window: int = setting(
+        10, help="covisible keyframes optimised by local bundle adjustment", min=1, max=100
+    )
+    ba_iterations: int = setting(10, help="iterations of each local bundle adjustment", min=1)
+    min_tracked: int = setting(
+        30, help="least map points a tracked frame must match after the local-map search", min=6
+    )
+    pnp_threshold_px: float = setting(
+        4.0, help="RANSAC inlier threshold of PnP (relocalisation, loops)", unit="px", gt=0.0
+    )
+    loop_closure: bool = setting(True, help="detect and close loops")
+    vocabulary: str = setting(
+        "default",
+        help="bag-of-words vocabulary: 'default' (shipped with slamcli), 'self' (trained on "
+        "the input's own frames in a first pass), or a file made by 'slamcli vocab train'",
+    )
+    loop_consistency: int = setting(
+        3,
+        help="consecutive keyframes a loop candidate must be recognised from before it is verified",
+        min=1,
+    )
+    loop_min_inliers: int = setting(
+        40, help="least matched points of a verified loop after the guided search", min=10
+    )
+    global_ba: bool = setting(
+        True, help="global bundle adjustment after a loop closure and at the end"
+    )
+    final_pose_refinement: bool = setting(
+        True,
+        help="re-estimate every frame's pose against the final map (else frames keep the "
+        "pose tracked online, moved with their keyframe)",
+    )
+    new_map_after_lost: int = setting(3, help="lost frames after which a new map is started", min=1)
+    mono_min_parallax_deg: float = setting(
+        1.0, help="monocular initialisation: least median parallax", unit="deg", gt=0.0
+    )
+    mono_min_points: int = setting(
+        50, help="monocular initialisation: least triangulated points", min=8
+    )
+    threads: int = setting(
+        2,
+        help="1 extracts features on the tracking thread; 2 extracts the next frame's "
+        "features on a second core (same results either way)",
+        choices=(1, 2),
+    )
+    seed: int = setting(0, help="seeds every RANSAC", min=0, max=2**31 - 1)
+
+    def __post_init__(self) -> None:
+        if self.depth_min_m >= self.depth_max_m:
+            raise ConfigError(
+                f"visual.depth_min_m: expected less than visual.depth_max_m "
+                f"({self.depth_max_m}), got {self.depth_min_m!r}",
+                hint="set visual.depth_min_m below visual.depth_max_m",
+            )
+
+
+@dataclass
+class _Frame:
+    """A frame being tracked."""
+
+    index: int
+    stamp_ns: int
+    name: str
+    features: Features
+    keypoints: F64  # (N, 2) undistorted
+    depth: F64  # (N,) metres or NaN
+    colors: NDArray[np.uint8]
+    cam_from_world: F64 | None = None
+    point_ids: I64 = field(default_factory=lambda: np.zeros(0, np.int64))
+    inliers: int = 0
+
+
+@dataclass
+class _FrameRecord:
+    """What the trajectory needs of a tracked frame: its pose relative to its reference
+    keyframe, and the points it matched (for the final re-estimation)."""
+
+    stamp_ns: int
+    kf: int
+    cam_from_kf: F64
+    map_id: int
+    kp: F64
+    sigma: F64
+    depth: F64
+    pids: I64
+    state: str
+
+
+class VisualSlam:
+    """Pipeline ``visual``: consumes ``rgbd`` (or ``image``, monocular) frames; produces
+    poses, keyframes, coloured points and a pose graph."""
+
+    name = "visual"
+    consumes: tuple[str, ...] = ("rgbd",)
+    config_class = VisualConfig
+
+    def __init__(self, config: VisualConfig | None = None) -> None:
+        self.config = config or VisualConfig()
+        cfg = self.config
+        self.mono = cfg.mode == "mono"
+        self.evaluation = "sim3" if self.mono else "se3"
+        self._orb = OrbSettings(
+            n_features=cfg.max_features,
+            levels=cfg.levels,
+            scale=cfg.scale_factor,
+            fast_threshold=cfg.fast_threshold,
+        )
+        self.map = SparseMap(cfg.scale_factor, cfg.levels)
+        self._camera: PinholeCamera | None = None
+        self._raw_camera: PinholeCamera | None = None
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: list[tuple[RgbdFrame | ImageFrame, Future[Features]]] = []
+        self._frames = 0
+        self._last: _Frame | None = None
+        self._last_points: tuple[F64, NDArray[np.uint8], I64, I64] | None = None
+        self._velocity: F64 | None = None
+        self._ref_kf: Keyframe | None = None
+        self._map_id = 0
+        self._maps: list[dict[str, Any]] = []
+        self._lost_run = 0
+        self._since_reloc = 100
+        self._records: list[_FrameRecord] = []
+        self._counts: dict[str, int] = defaultdict(int)
+        self._ms: dict[str, float] = defaultdict(float)
+        self._loops: list[dict[str, Any]] = []
+        self._merges: list[dict[str, Any]] = []
+        self._places: Any = None
+        self._init_ref: _Frame | None = None
+        self._textureless = 0
+        self._consistent: list[tuple[set[int], int]] = []
+
+    # -- the pipeline -------------------------------------------------------------------------
+
+    def seeds(self) -> dict[str, int]:
+        """Seeds of the random choices: COLMAP's RANSAC (PnP) and OpenCV's (two-view geometry)
+        both get ``config.seed``."""
+        return {"ransac": self.config.seed, "opencv": self.config.seed}
+
+    def frame_kinds(self, info: Any) -> tuple[str, ...]:
+        """The frames to read from a source described by ``info`` (a SourceInfo): RGB-D when
+        it has depth and the mode allows, colour images otherwise.
+
+        Raises:
+            ConfigError: ``mode=rgbd`` for an input without depth.
+        """
+        has_depth = any(s.kind == "depth" for s in getattr(info, "streams", []))
+        mode = self.config.mode
+        if mode == "rgbd" and not has_depth:
+            raise ConfigError(
+                f"visual.mode=rgbd, but {getattr(info, 'path', 'the input')} has no depth stream",
+                hint="use --set mode=mono (or mode=auto) for colour-only input",
+            )
+        self.mono = mode == "mono" or (mode == "auto" and not has_depth)
+        self.evaluation = "sim3" if self.mono else "se3"
+        return ("image",) if self.mono else ("rgbd",)
+
+    def process(self, frame: RgbdFrame | ImageFrame) -> None:
+        """Queue a frame; with two threads its features are extracted while the previous
+        frame is tracked."""
+        if self.config.threads == 2:
+            if self._pool is None:
+                self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="orb")
+            self._pending.append((frame, self._pool.submit(self._extract, frame)))
+            if len(self._pending) > 1:
+                ready, fut = self._pending.pop(0)
+                self._track_frame(ready, fut.result())
+        else:
+            self._track_frame(frame, self._extract(frame))
+
+    def finish(self) -> SlamResult:
+        """Track what is queued, adjust the final map, and return the result."""
+        while self._pending:
+            ready, fut = self._pending.pop(0)
+            self._track_frame(ready, fut.result())
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+        if self._frames == 0:
+            raise PipelineError("the visual pipeline received no frames")
+        start = time.perf_counter()
+        main = self._main_map()
+        if main is None:
+            self._no_map_error()
+        if self.config.global_ba:
+            with self._timed("global_ba"):
+                self._global_ba(main)
+        with self._timed("final_poses"):
+            trajectory = self._trajectory(main)
+        self._ms["total"] += (time.perf_counter() - start) * 1e3
+        return self._result(main, trajectory)
+
+    # -- frames ------------------------------------------------------------------------------
+
+    def _extract(self, frame: RgbdFrame | ImageFrame) -> Features:
+        import cv2
+
+        rgb = frame.rgb if isinstance(frame, RgbdFrame) else frame.image
+        if rgb.ndim == 2:
+            gray = np.ascontiguousarray(rgb, dtype=np.uint8)
+        else:
+            colour = np.ascontiguousarray(rgb[..., :3], dtype=np.uint8)
+            gray = np.asarray(cv2.cvtColor(colour, cv2.COLOR_RGB2GRAY), dtype=np.uint8)
+        return extract_orb(gray, self._orb)
+
+    def _prepare(self, frame: RgbdFrame | ImageFrame, features: Features) -> _Frame:
+        rgb = frame.rgb if isinstance(frame, RgbdFrame) else frame.image
+        cam = frame.camera
+        if cam is None:
+            raise InputError(
+                f"frame {frame.name or frame.stamp_ns}: no camera calibration",
+                hint="give one with --camera FILE",
+            )
+        h, w = rgb.shape[:2]
+        if (cam.height, cam.width) != (h, w):
+            raise InputError(
+                f"frame {frame.name or frame.stamp_ns}: the image is {w}x{h} but the camera "
+                f"is {cam.width}x{cam.height}",
+                hint="give the camera calibration that matches the images (--camera FILE)",
+            )
+        if isinstance(frame, RgbdFrame) and frame.depth_m.shape[:2] != (h, w):
+            raise InputError(
+                f"frame {frame.name or frame.stamp_ns}: colour {w}x{h} but depth "
+                f"{frame.depth_m.shape[1]}x{frame.depth_m.shape[0]}",
+                hint="the visual pipeline needs depth registered to the colour image",
+            )
+        if self._raw_camera is None:
+            self._raw_camera = cam
+            self._camera = cam.undistorted()
+        elif cam != self._raw_camera:
+            raise InputError(
+                f"frame {frame.name or frame.stamp_ns}: the camera changed mid-sequence",
+                hint="the visual pipeline needs one fixed camera",
+            )
+        from slamcli.vision.features import undistort_keypoints
+
+        kp_raw = features.keypoints
+        kp = undistort_keypoints(cam, kp_raw)
+        if isinstance(frame, RgbdFrame) and not self.mono:
+            depth = np.nan_to_num(np.asarray(frame.depth_m, np.float32), nan=0.0, posinf=0.0)
+            z = depth_at(kp_raw, depth)
+            z[(z < self.config.depth_min_m) | (z > self.config.depth_max_m)] = np.nan
+        else:
+            z = np.full(len(kp), np.nan)
+        u = np.clip(np.rint(kp_raw[:, 0]).astype(np.int64), 0, w - 1)
+        v = np.clip(np.rint(kp_raw[:, 1]).astype(np.int64), 0, h - 1)
+        colors = (
+            np.repeat(rgb[v, u][:, None], 3, axis=1)
+            if rgb.ndim == 2
+            else np.asarray(rgb[v, u][:, :3], dtype=np.uint8)
+        )
+        return _Frame(
+            index=self._frames,
+            stamp_ns=frame.stamp_ns,
+            name=frame.name,
+            features=features,
+            keypoints=kp,
+            depth=z,
+            colors=np.asarray(colors, dtype=np.uint8),
+            point_ids=np.full(len(kp), -1, np.int64),
+        )
+
+    def _track_frame(self, frame: RgbdFrame | ImageFrame, features: Features) -> None:
+        start = time.perf_counter()
+        cur = self._prepare(frame, features)
+        self._frames += 1
+        if len(cur.features) < 20:
+            self._textureless += 1
+        state = self._track(cur)
+        self._counts[f"frames_{state}"] += 1
+        self._ms["total"] += (time.perf_counter() - start) * 1e3
+
+    # -- tracking ----------------------------------------------------------------------------
+
+    def _track(self, cur: _Frame) -> str:
+        """Pose ``cur``; returns its tracking state (tracked, relocalised, initialising,
+        new_map, lost)."""
+        if self._ref_kf is None or self._ref_kf.map_id != self._map_id:
+            return self._initialise(cur)
+        pose = None
+        state = "tracked"
+        with self._timed("track"):
+            if self._last is not None and self._velocity is not None and self._lost_run == 0:
+                pose = self._track_motion(cur)
+            if pose is None and self._lost_run == 0:
+                pose = self._track_reference(cur)
+        if pose is None:
+            with self._timed("relocalise"):
+                pose = self._relocalise(cur)
+            state = "relocalised"
+            self._since_reloc = 0
+        if pose is not None:
+            cur.cam_from_world = pose
+            with self._timed("local_map"):
+                ok = self._track_local_map(cur)
+            if not ok:
+                pose = None
+        if pose is None:
+            self._lost_run += 1
+            self._last = None
+            if self._lost_run >= self.config.new_map_after_lost:
+                self._start_new_map()
+            return "lost"
+        self._lost_run = 0
+        self._since_reloc += 1
+        assert cur.cam_from_world is not None
+        if self._last is not None and self._last.cam_from_world is not None:
+            self._velocity = cur.cam_from_world @ inverse(self._last.cam_from_world)
+        else:
+            self._velocity = None
+        self._record(cur, state)
+        if self._wants_keyframe(cur):
+            with self._timed("mapping"):
+                self._make_keyframe(cur)
+        self._set_last(cur)
+        return state
+
+    def _track_motion(self, cur: _Frame) -> F64 | None:
+        """Constant-velocity prediction, refined on the last frame's points found by
+        projection."""
+        assert self._last is not None and self._velocity is not None
+        assert self._last.cam_from_world is not None and self._last_points is not None
+        predicted = self._velocity @ self._last.cam_from_world
+        world, desc, octv, pids = self._last_points
+        th = 15.0 if self.mono else 7.0
+        for radius in (th, 2 * th):
+            pairs = self._project_match(cur, predicted, world, desc, octv, radius, ratio=0.9)
+            if len(pairs) >= 20:
+                break
+        if len(pairs) < 20:
+            self._counts["motion_model_failed"] += 1
+            return None
+        est = self._refine(
+            predicted,
+            cur.keypoints[pairs[:, 1]],
+            world[pairs[:, 0]],
+            self.map.sigma[cur.features.octaves[pairs[:, 1]]],
+            cur.depth[pairs[:, 1]],
+        )
+        if est is None or est.num_inliers < 10:
+            self._counts["motion_model_failed"] += 1
+            return None
+        good = pairs[est.inliers]
+        keep = pids[good[:, 0]] >= 0
+        cur.point_ids[good[keep, 1]] = pids[good[keep, 0]]
+        return est.cam_from_world
+
+    def _refine(
+        self, pose: F64, kp: F64, world: F64, sigma: F64, depth: F64
+    ) -> PoseEstimate | None:
+        """Robust pose refinement: with the keypoints' depths for RGB-D (a stereo-like
+        residual), reprojection only for monocular."""
+        cam = self._camera_checked()
+        if self.mono:
+            return refine_pose(cam, pose, kp, world, sigma_px=sigma)
+        return refine_pose_depth(cam, pose, kp, world, depth, sigma_px=sigma)
+
+    def _track_reference(self, cur: _Frame) -> F64 | None:
+        """Match the reference keyframe's points by appearance; PnP."""
+        kf = self._ref_kf
+        assert kf is not None
+        est = self._pnp_against(cur, kf)
+        if est is None:
+            self._counts["reference_failed"] += 1
+            return None
+        return est
+
+    def _pnp_against(self, cur: _Frame, kf: Keyframe, min_inliers: int = 15) -> F64 | None:
+        has = np.flatnonzero(kf.point_ids >= 0)
+        if has.size < min_inliers:
+            return None
+        pairs = match_ratio(kf.descriptors[has], cur.features.descriptors, 0.75, TH_HIGH)
+        if len(pairs) < min_inliers:
+            return None
+        pids = kf.point_ids[has[pairs[:, 0]]]
+        est = absolute_pose(
+            self._camera_checked(),
+            cur.keypoints[pairs[:, 1]],
+            self.map.pos[pids],
+            threshold_px=self.config.pnp_threshold_px,
+            min_inliers=min_inliers,
+            seed=self.config.seed,
+        )
+        if est is None:
+            return None
+        cur.point_ids[:] = -1
+        cur.point_ids[pairs[est.inliers, 1]] = pids[est.inliers]
+        return est.cam_from_world
+
+    def _relocalise(self, cur: _Frame) -> F64 | None:
+        """Place recognition against every keyframe of the current map, then PnP."""
+        candidates = self._place_candidates(cur.features.descriptors, self._map_id, limit=5)
+        for kf_id, _score in candidates:
+            pose = self._pnp_against(cur, self.map.keyframes[kf_id], min_inliers=30)
+            if pose is not None:
+                self._ref_kf = self.map.keyframes[kf_id]
+                return pose
+        # Without a vocabulary hit, the latest keyframes of the map.
+        for kf in reversed(self.map.live(self._map_id)[-5:]):
+            pose = self._pnp_against(cur, kf, min_inliers=30)
+            if pose is not None:
+                self._ref_kf = kf
+                return pose
+        self._counts["relocalisation_failed"] += 1
+        return None
+
+    def _track_local_map(self, cur: _Frame) -> bool:
+        """Search the local map by projection, refine the pose; whether tracking holds."""
+        assert cur.cam_from_world is not None
+        local_kfs = self._local_keyframes(cur)
+        if local_kfs:
+            self._ref_kf = local_kfs[0]
+        ids = [kf.point_ids[kf.point_ids >= 0] for kf in local_kfs]
+        pids = np.unique(np.concatenate(ids)) if ids else np.zeros(0, np.int64)
+        pids = pids[self.map.alive[pids] & (self.map.map_id[pids] == self._map_id)]
+        pids = np.setdiff1d(pids, cur.point_ids[cur.point_ids >= 0])
+        pose = cur.cam_from_world
+        visible, dist = self._in_view(pose, pids)
+        pids, dist = pids[visible], dist[visible]
+        self.map.visible[pids] += 1
+        if pids.size:
+            octv = self.map.predict_octave(pids, dist)
+            th = 5.0 if self._since_reloc < 2 else 3.0
+            pairs = self._project_match(
+                cur, pose, self.map.pos[pids], self.map.desc[pids], octv, th * 2.5, ratio=0.8
+            )
+            free = cur.point_ids[pairs[:, 1]] < 0
+            cur.point_ids[pairs[free, 1]] = pids[pairs[free, 0]]
+        matched = np.flatnonzero(cur.point_ids >= 0)
+        if matched.size < 6:
+            return False
+        est = self._refine(
+            pose,
+            cur.keypoints[matched],
+            self.map.pos[cur.point_ids[matched]],
+            self.map.sigma[cur.features.octaves[matched]],
+            cur.depth[matched],
+        )
+        if est is None:
+            return False
+        outliers = matched[~est.inliers]
+        cur.point_ids[outliers] = -1
+        cur.cam_from_world = est.cam_from_world
+        inl = cur.point_ids[cur.point_ids >= 0]
+        self.map.found[inl] += 1
+        cur.inliers = int(inl.size)
+        need = 50 if self._since_reloc < 2 else self.config.min_tracked
+        if cur.inliers < need:
+            self._counts["local_map_too_few"] += 1
+            return False
+        return True
+
+    def _local_keyframes(self, cur: _Frame) -> list[Keyframe]:
+        """Keyframes seeing the frame's points (most shared first), then their neighbours."""
+        from collections import Counter
+
+        counts: Counter[int] = Counter()
+        for pid in cur.point_ids[cur.point_ids >= 0].tolist():
+            counts.update(self.map.obs[pid].keys())
+        first = sorted(
+            (k for k in counts if not self.map.keyframes[k].culled),
+            key=lambda k: (-counts[k], k),
+        )
+        if not first and self._ref_kf is not None:
+            first = [self._ref_kf.id]
+        chosen = list(first[:80])
+        seen = set(chosen)
+        for k in first[:80]:
+            if len(chosen) >= 80:
+                break
+            for nb, _w in self.map.covisible(self.map.keyframes[k])[:10]:
+                if nb not in seen:
+                    seen.add(nb)
+                    chosen.append(nb)
+                    break
+        return [self.map.keyframes[k] for k in chosen]
+
+    def _in_view(self, cam_from_world: F64, pids: I64) -> tuple[NDArray[np.bool_], F64]:
+        """Which points project into the image at a distance and angle their scale range and
+        viewing direction allow; and their distances."""
+        cam = self._camera_checked()
+        p = self.map.pos[pids] @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+        z = p[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = cam.fx * p[:, 0] / z + cam.cx
+            v = cam.fy * p[:, 1] / z + cam.cy
+        ok = (z > 1e-6) & (u >= 0) & (u < cam.width) & (v >= 0) & (v < cam.height)
+        center = -cam_from_world[:3, :3].T @ cam_from_world[:3, 3]
+        ray = self.map.pos[pids] - center
+        dist = np.linalg.norm(ray, axis=1)
+        ok &= self.map.in_range(pids, dist)
+        cos = np.einsum("ij,ij->i", ray, self.map.normal[pids]) / np.maximum(dist, 1e-12)
+        ok &= cos >= 0.5
+        return ok, dist
+
+    def _project_match(
+        self,
+        cur: _Frame,
+        cam_from_world: F64,
+        world: F64,
+        desc: NDArray[np.uint8],
+        octaves: I64,
+        radius: float,
+        ratio: float,
+        max_distance: int = TH_HIGH,
+    ) -> I64:
+        """(K, 2) pairs (point row, keypoint) found by projecting ``world`` points."""
+        cam = self._camera_checked()
+        p = world @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+        z = p[:, 2]
+        front = np.flatnonzero(z > 1e-6)
+        if front.size == 0:
+            return np.zeros((0, 2), np.int64)
+        uv = np.stack(
+            [cam.fx * p[front, 0] / z[front] + cam.cx, cam.fy * p[front, 1] / z[front] + cam.cy],
+            axis=1,
+        )
+        inside = (
+            (uv[:, 0] >= 0) & (uv[:, 0] < cam.width) & (uv[:, 1] >= 0) & (uv[:, 1] < cam.height)
+        )
+        front, uv = front[inside], uv[inside]
+        if front.size == 0:
+            return np.zeros((0, 2), np.int64)
+        pairs = match_by_projection(
+            uv,
+            desc[front],
+            radius * self.map.sigma[octaves[front]],
+            cur.keypoints,
+            cur.features.descriptors,
+            kp_octaves=cur.features.octaves,
+            predicted_octaves=octaves[front],
+            ratio=ratio,
+            max_distance=max_distance,
+        )
+        pairs[:, 0] = front[pairs[:, 0]]
+        return pairs
+
+    def _set_last(self, cur: _Frame) -> None:
+        """Keep the frame's points for the next frame's motion-model search: its map points
+        and, RGB-D, its other keypoints lifted with depth (ORB-SLAM's temporary points)."""
+        assert cur.cam_from_world is not None
+        self._last = cur
+        has = cur.point_ids >= 0
+        rows = np.flatnonzero(has)
+        world = self.map.pos[cur.point_ids[rows]]
+        pids = cur.point_ids[rows]
+        if not self.mono:
+            extra = np.flatnonzero(~has & np.isfinite(cur.depth))
+            if extra.size:
+                cam = self._camera_checked()
+                from slamcli.geometry.camera import unproject
+
+                pc = unproject(cam, cur.keypoints[extra], cur.depth[extra])
+                w2c = inverse(cur.cam_from_world)
+                world = np.concatenate([world, pc @ w2c[:3, :3].T + w2c[:3, 3]])
+                rows = np.concatenate([rows, extra])
+                pids = np.concatenate([pids, np.full(extra.size, -1, np.int64)])
+        self._last_points = (
+            world,
+            cur.features.descriptors[rows],
+            cur.features.octaves[rows].astype(np.int64),
+            pids,
+        )
+
+    def _record(self, cur: _Frame, state: str) -> None:
+        assert cur.cam_from_world is not None and self._ref_kf is not None
+        rows = np.flatnonzero(cur.point_ids >= 0)
+        self._records.append(
+            _FrameRecord(
+                cur.stamp_ns,
+                self._ref_kf.id,
+                cur.cam_from_world @ inverse(self._ref_kf.cam_from_world),
+                self._map_id,
+                cur.keypoints[rows],
+                self.map.sigma[cur.features.octaves[rows]],
+                cur.depth[rows],
+                cur.point_ids[rows],
+                state,
+            )
+        )
+
+    # -- keyframes and local mapping ---------------------------------------------------------
+
+    def _wants_keyframe(self, cur: _Frame) -> bool:
+        kf = self._ref_kf
+        assert kf is not None
+        last_kf = self.map.keyframes[-1]
+        if self._since_reloc < 2:
+            return False
+        live = self.map.live(self._map_id)
+        min_obs = 2 if len(live) <= 2 else 3
+        if not self.mono:
+            # ORB-SLAM counts an RGB-D observation twice (it carries depth).
+            min_obs -= 1
+        ref_pids = kf.point_ids[kf.point_ids >= 0]
+        ref_matches = sum(1 for p in ref_pids.tolist() if len(self.map.obs[p]) >= min_obs)
+        ratio = (
+            max(self.config.keyframe_track_ratio, 0.9)
+            if self.mono
+            else self.config.keyframe_track_ratio
+        )
+        if len(live) < 2 and not self.mono:
+            ratio = 0.4
+        tracked = cur.inliers
+        need_close = False
+        if not self.mono:
+            close = np.isfinite(cur.depth) & (cur.depth < 0.75 * self.config.depth_max_m)
+            tracked_close = int(np.count_nonzero(close & (cur.point_ids >= 0)))
+            untracked_close = int(np.count_nonzero(close & (cur.point_ids < 0)))
+            need_close = tracked_close < 100 and untracked_close > 70
+        # Offline, local mapping is never busy: ORB-SLAM's "mapping idle" condition always
+        # holds, so a keyframe is made whenever tracking weakens, or after keyframe_max_frames.
+        weak = (tracked < ref_matches * ratio or need_close) and tracked > 15
+        overdue = cur.index - last_kf.frame >= self.config.keyframe_max_frames and tracked > 15
+        return bool(weak or overdue)
+
+    def _new_keyframe(self, cur: _Frame) -> Keyframe:
+        assert cur.cam_from_world is not None
+        kf = Keyframe(
+            id=len(self.map.keyframes),
+            frame=cur.index,
+            stamp_ns=cur.stamp_ns,
+            map_id=self._map_id,
+            cam_from_world=cur.cam_from_world.copy(),
+            keypoints=cur.keypoints,
+            octaves=cur.features.octaves,
+            descriptors=cur.features.descriptors,
+            depth=cur.depth,
+            colors=cur.colors,
+            point_ids=np.full(len(cur.keypoints), -1, np.int64),
+        )
+        self.map.add_keyframe(kf)
+        return kf
+
+    def _make_keyframe(self, cur: _Frame) -> None:
+        kf = self._new_keyframe(cur)
+        assert self._ref_kf is not None
+        kf.parent = self._ref_kf.id
+        rows = np.flatnonzero(cur.point_ids >= 0)
+        for r, pid in zip(rows.tolist(), cur.point_ids[rows].tolist(), strict=True):
+            if self.map.alive[pid] and kf.id not in self.map.obs[pid]:
+                self.map.observe(kf, r, pid)
+        self.map.update_geometry(kf.point_ids[kf.point_ids >= 0])
+        if not self.mono:
+            self._points_from_depth(kf)
+        else:
+            self._triangulate(kf)
+        self._fuse_neighbours(kf)
+        self._cull_points(kf)
+        self._local_ba(kf)
+        self._cull_keyframes(kf)
+        self._ref_kf = kf
+        self._index_place(kf)
+        if self.config.loop_closure:
+            with self._timed("loop"):
+                self._detect_loop(kf)
+        # The frame's matches follow the keyframe's (fused) points, and its pose the keyframe's
+        # (moved by a loop closure or a merge).
+        cur.point_ids = kf.point_ids.copy()
+        cur.cam_from_world = kf.cam_from_world.copy()
+        self._counts["keyframes_made"] += 1
+
+    def _points_from_depth(self, kf: Keyframe) -> None:
+        free = np.flatnonzero((kf.point_ids < 0) & np.isfinite(kf.depth))
+        if free.size == 0:
+            return
+        from slamcli.geometry.camera import unproject
+
+        cam = self._camera_checked()
+        pc = unproject(cam, kf.keypoints[free], kf.depth[free])
+        w = inverse(kf.cam_from_world)
+        self.map.add_points(kf, free, pc @ w[:3, :3].T + w[:3, 3])
+
+    def _fuse_neighbours(self, kf: Keyframe) -> None:
+        """Project the neighbours' points into the new keyframe: a match to a keypoint without
+        a point adds an observation, to one with another point fuses the two."""
+        neighbours = [self.map.keyframes[k] for k, _ in self.map.covisible(kf)[:10]]
+        if not neighbours:
+            return
+        ids = np.unique(np.concatenate([nb.point_ids[nb.point_ids >= 0] for nb in neighbours]))
+        ids = ids[self.map.alive[ids]]
+        ids = np.setdiff1d(ids, kf.point_ids[kf.point_ids >= 0])
+        self._fuse_into(kf, ids)
+
+    def _fuse_into(self, kf: Keyframe, ids: I64, radius: float = 3.0) -> int:
+        """Fuse points ``ids`` into keyframe ``kf`` by projection; returns how many matched."""
+        if ids.size == 0:
+            return 0
+        visible, dist = self._in_view(kf.cam_from_world, ids)
+        ids, dist = ids[visible], dist[visible]
+        if ids.size == 0:
+            return 0
+        octv = self.map.predict_octave(ids, dist)
+        fake = _Frame(
+            kf.frame, kf.stamp_ns, "", _features_of(kf), kf.keypoints, kf.depth, kf.colors
+        )
+        pairs = self._project_match(
+            fake,
+            kf.cam_from_world,
+            self.map.pos[ids],
+            self.map.desc[ids],
+            octv,
+            radius,
+            ratio=1.0,
+            max_distance=TH_LOW,
+        )
+        # Reprojection check with the keypoint's scale (and, RGB-D, its depth as a stereo
+        # disparity, as ORB-SLAM's Fuse).
+        cam = self._camera_checked()
+        p = self.map.pos[ids[pairs[:, 0]]] @ kf.cam_from_world[:3, :3].T + kf.cam_from_world[:3, 3]
+        uv = np.stack([cam.fx * p[:, 0] / p[:, 2] + cam.cx, cam.fy * p[:, 1] / p[:, 2] + cam.cy], 1)
+        err2 = np.sum((uv - kf.keypoints[pairs[:, 1]]) ** 2, axis=1)
+        sig = self.map.sigma[kf.octaves[pairs[:, 1]]]
+        z_kp = kf.depth[pairs[:, 1]]
+        stereo = np.isfinite(z_kp)
+        bf = cam.fx * _BASELINE_M
+        disp = np.where(stereo, bf / p[:, 2] - bf / np.where(stereo, z_kp, 1.0), 0.0)
+        pairs = pairs[err2 + disp**2 <= np.where(stereo, 7.815, _CHI2_2D) * sig**2]
+        n = 0
+        for row, kp in pairs.tolist():
+            pid = int(ids[row])
+            if not self.map.alive[pid]:
+                continue
+            other = int(kf.point_ids[kp])
+            if other < 0:
+                if kf.id not in self.map.obs[pid]:
+                    self.map.observe(kf, kp, pid)
+                    n += 1
+            elif other != pid and self.map.alive[other]:
+                keep, drop = (
+                    (pid, other)
+                    if len(self.map.obs[pid]) >= len(self.map.obs[other])
+                    else (other, pid)
+                )
+                self.map.replace(drop, keep)
+                n += 1
+        return n
+
+    def _cull_points(self, kf: Keyframe) -> None:
+        """Points made in the last keyframes that are seldom found where predicted, or seen by
+        too few keyframes, are removed (ORB-SLAM's recent-point culling)."""
+        lo = max(0, self.map.n - 20000)
+        ids = np.arange(lo, self.map.n)
+        ids = ids[self.map.alive[ids] & (self.map.map_id[ids] == kf.map_id)]
+        ids = ids[self.map.first_kf[ids] >= kf.id - 2]
+        ratio = self.map.found[ids] / np.maximum(self.map.visible[ids], 1)
+        n_obs = np.array([len(self.map.obs[p]) for p in ids.tolist()], dtype=np.int64)
+        # An RGB-D point is made from one keyframe's depth; a monocular one from two views.
+        th_obs = 2 if self.mono else 1
+        age = kf.id - self.map.first_kf[ids]
+        bad = (ratio < 0.25) | ((age >= 2) & (n_obs <= th_obs))
+        for pid in ids[bad].tolist():
+            self.map.cull_point(pid)
+        self._counts["points_culled"] += int(np.count_nonzero(bad))
+
+    def _local_ba(self, kf: Keyframe) -> None:
+
+        window = [kf] + [
+            self.map.keyframes[k] for k, _ in self.map.covisible(kf)[: self.config.local_window]
+        ]
+        window_ids = {k.id for k in window}
+        pids = np.unique(np.concatenate([k.point_ids[k.point_ids >= 0] for k in window]))
+        pids = pids[self.map.alive[pids]]
+        if pids.size == 0:
+            return
+        fixed_ids: list[int] = []
+        for pid in pids.tolist():
+            for k in self.map.obs[pid]:
+                if k not in window_ids and k not in fixed_ids and not self.map.keyframes[k].culled:
+                    fixed_ids.append(k)
+        fixed_ids = sorted(fixed_ids)[:40]
+        if not fixed_ids and self.map.live(kf.map_id)[0].id in window_ids:
+            first = self.map.live(kf.map_id)[0]
+            window = [first] + [k for k in window if k.id != first.id]
+            fixed = [True] + [False] * (len(window) - 1)
+        else:
+            fixed = [False] * len(window) + [True] * len(fixed_ids)
+            window = window + [self.map.keyframes[k] for k in fixed_ids]
+        self._bundle(window, np.array(fixed), pids, self.config.ba_iterations)
+        self._counts["local_ba"] += 1
+
+    def _bundle(
+        self, kfs: list[Keyframe], fixed: NDArray[np.bool_], pids: I64, iterations: int
+    ) -> None:
+        """Bundle-adjust keyframes ``kfs`` (``fixed`` held) and points ``pids``; drop the
+        observations that end up outliers."""
+        from slamcli.vision.bundle_adjustment import bundle_adjust
+
+        index = {k.id: i for i, k in enumerate(kfs)}
+
+        # A point seen once in the problem, without depth, cannot be placed by it (with depth
+        # it can, and must follow its keyframe).
+        def placed(p: int) -> bool:
+            seen = [(k, i) for k, i in self.map.obs[p].items() if k in index]
+            if len(seen) >= 2:
+                return True
+            return (
+                bool(seen)
+                and not self.mono
+                and bool(np.isfinite(self.map.keyframes[seen[0][0]].depth[seen[0][1]]))
+            )
+
+        pids = np.array([p for p in pids.tolist() if placed(p)], dtype=np.int64)
+        prow = {int(p): i for i, p in enumerate(pids.tolist())}
+        of, op, uv, sig, okp, dep = [], [], [], [], [], []
+        for pid in pids.tolist():
+            for k, kp in self.map.obs[pid].items():
+                i = index.get(k)
+                if i is None:
+                    continue
+                kfo = kfs[i]
+                of.append(i)
+                op.append(prow[pid])
+                uv.append(kfo.keypoints[kp])
+                sig.append(self.map.sigma[int(kfo.octaves[kp])])
+                okp.append(kp)
+                dep.append(kfo.depth[kp])
+        if not of:
+            return
+        result = bundle_adjust(
+            self._camera_checked(),
+            np.stack([k.cam_from_world for k in kfs]),
+            self.map.pos[pids].copy(),
+            np.asarray(of, np.int64),
+            np.asarray(op, np.int64),
+            np.asarray(uv, np.float64),
+            np.asarray(sig, np.float64),
+            fixed_frames=fixed,
+            max_iterations=iterations,
+            obs_depth=None if self.mono else np.asarray(dep, np.float64),
+        )
+        for i, k in enumerate(kfs):
+            if not fixed[i]:
+                k.cam_from_world = result.cam_from_world[i]
+        self.map.pos[pids] = result.points
+        bad = np.flatnonzero(~result.inlier)
+        for b in bad.tolist():
+            self.map.forget(kfs[of[b]], okp[b])
+        self._counts["ba_outliers_removed"] += int(bad.size)
+        self.map.update_geometry(pids[self.map.alive[pids]])
+
+    def _cull_keyframes(self, kf: Keyframe) -> None:
+        """A covisible keyframe whose points are 90% seen by three others at the same or a
+        finer scale is redundant: it is culled (its pose then follows its parent)."""
+        first = self.map.live(kf.map_id)[0].id
+        for k, _w in self.map.covisible(kf):
+            cand = self.map.keyframes[k]
+            if cand.id == first or cand.id == kf.id or cand.culled or cand.loop_edges:
+                continue
+            rows = np.flatnonzero(cand.point_ids >= 0)
+            if not self.mono:
+                rows = rows[np.isfinite(cand.depth[rows])]
+            if rows.size == 0:
+                continue
+            redundant = 0
+            for r in rows.tolist():
+                pid = int(cand.point_ids[r])
+                level = int(cand.octaves[r])
+                seen = 0
+                for k2, kp2 in self.map.obs[pid].items():
+                    if k2 != cand.id and self.map.keyframes[k2].octaves[kp2] <= level + 1:
+                        seen += 1
+                        if seen >= 3:
+                            redundant += 1
+                            break
+            if redundant > 0.9 * rows.size:
+                self._cull(cand)
+
+    def _cull(self, cand: Keyframe) -> None:
+        nbs = [k for k, _ in self.map.covisible(cand) if k != cand.id]
+        parent = cand.parent if cand.parent is not None else (nbs[0] if nbs else None)
+        if parent is None:
+            return
+        # Re-hang children on the parent.
+        for other in self.map.keyframes:
+            if other.parent == cand.id and not other.culled:
+                other.parent = parent
+        cand.culled = True
+        cand.parent = parent
+        cand.from_parent = cand.cam_from_world @ inverse(self.map.world_pose(parent))
+        for kp in np.flatnonzero(cand.point_ids >= 0).tolist():
+            self.map.forget(cand, kp)
+        if self._places is not None:
+            self._places.remove(cand.id)
+        self._counts["keyframes_culled"] += 1
+
+    # -- maps --------------------------------------------------------------------------------
+
+    def _initialise(self, cur: _Frame) -> str:
+        if self.mono:
+            return self._initialise_mono(cur)
+        has = np.isfinite(cur.depth)
+        if np.count_nonzero(has) < 100:
+            self._counts["init_too_little_depth"] += 1
+            return "initialising"
+        cur.cam_from_world = np.eye(4) if not self._maps else self._guess_new_map_pose()
+        kf = self._new_keyframe(cur)
+        self._points_from_depth(kf)
+        self._maps.append({"id": self._map_id, "first_frame": cur.index, "merged_into": None})
+        self._ref_kf = kf
+        self._index_place(kf)
+        cur.point_ids = kf.point_ids.copy()
+        cur.inliers = int(np.count_nonzero(kf.point_ids >= 0))
+        self._velocity = None
+        self._record(cur, "tracked")
+        self._set_last(cur)
+        self._counts["keyframes_made"] += 1
+        return "new_map" if len(self._maps) > 1 else "tracked"
+
+    def _guess_new_map_pose(self) -> F64:
+        return np.eye(4)
+
+    def _start_new_map(self) -> None:
+        self._map_id += 1
+        self._ref_kf = None
+        self._last = None
+        self._velocity = None
+        self._lost_run = 0
+        self._init_ref = None
+        self._counts["maps_started"] += 1
+
+    def _main_map(self) -> int | None:
+        kfs = self.map.live()
+        if not kfs:
+            return None
+        return kfs[0].map_id
+
+    def _no_map_error(self) -> None:
+        if self._textureless >= self._frames * 0.9:
+            raise PipelineError(
+                f"no map could be made: {self._textureless} of {self._frames} frames had fewer "
+                "than 20 ORB features (images without texture?)",
+                hint="check the images; visual SLAM needs textured scenes",
+            )
+        if self.mono:
+            raise PipelineError(
+                f"monocular initialisation never succeeded over {self._frames} frames (it needs "
+                f"{self.config.mono_min_points} points triangulated with at least "
+                f"{self.config.mono_min_parallax_deg} deg of parallax: the camera must translate)",
+                hint="give a sequence that moves sideways, or use RGB-D input",
+            )
+        raise PipelineError(
+            f"no map could be made from {self._frames} frames: none had 100 keypoints with depth "
+            f"between {self.config.depth_min_m} and {self.config.depth_max_m} m",
+            hint="check the depth stream and its depth scale, or widen visual.depth_max_m",
+        )
+
+    # -- place recognition and loops -- filled in by the loop-closure stage ---------------------
+
+    def _index_place(self, kf: Keyframe) -> None:
+        db = self._place_db()
+        if db is None:
+            return
+        kf.bow = db.vocabulary.bow(kf.descriptors)
+        db.add(kf.id, kf.bow)
+
+    def _place_db(self) -> Any:
+        if self._places is None:
+            from slamcli.vision.vocabulary import KeyframeDatabase
+
+            self._places = KeyframeDatabase(self._vocabulary())
+        return self._places
+
+    def _vocabulary(self) -> Any:
+        from slamcli.vision.vocabulary import Vocabulary
+
+        name = self.config.vocabulary
+        if name == "default":
+            return Vocabulary.default()
+        return Vocabulary.load(name)
+
+    def _place_candidates(
+        self, descriptors: NDArray[np.uint8], map_id: int | None, limit: int
+    ) -> list[tuple[int, float]]:
+        db = self._place_db()
+        if db is None:
+            return []
+        bow = db.vocabulary.bow(descriptors)
+        out = []
+        for kf_id, score in db.query(bow):
+            kf = self.map.keyframes[kf_id]
+            if kf.culled or (map_id is not None and kf.map_id != map_id):
+                continue
+            out.append((kf_id, score))
+            if len(out) >= limit:
+                break
+        return out
+
+    def _detect_loop(self, kf: Keyframe) -> None:
+        """Place recognition for a new keyframe; verified candidates close a loop (same map)
+        or merge two maps."""
+        db = self._place_db()
+        if kf.bow is None or (len(self.map.live(kf.map_id)) < 10 and len(self._maps) < 2):
+            self._consistent = []
+            return
+        covis = self.map.covisible(kf)
+        connected = {k for k, _ in covis} | {kf.id}
+        voc = db.vocabulary
+        scores = [
+            voc.score(kf.bow, self.map.keyframes[k].bow)
+            for k, _ in covis[:30]
+            if self.map.keyframes[k].bow is not None
+        ]
+        min_score = min(scores) if scores else 0.0
+        results = {
+            k: s
+            for k, s in db.query(kf.bow, exclude=connected)
+            if s >= min_score
+            and not self.map.keyframes[k].culled
+            # Keyframes just made are neighbours in time, not a revisited place.
+            and not (self.map.keyframes[k].map_id == kf.map_id and kf.id - k < 10)
+        }
+        if not results:
+            self._consistent = []
+            return
+        # Accumulate each candidate's score over its best neighbours; keep the groups close to
+        # the best (ORB-SLAM's DetectLoopCandidates).
+        groups = []
+        for k, s in sorted(results.items(), key=lambda ks: (-ks[1], ks[0])):
+            nbs = [n for n, _ in self.map.covisible(self.map.keyframes[k])[:10]]
+            acc = s + sum(results.get(n, 0.0) for n in nbs)
+            best = max(
+                [(results.get(n, 0.0), n) for n in nbs] + [(s, k)], key=lambda x: (x[0], -x[1])
+            )
+            groups.append((acc, best[1], best[0], {k, *nbs}))
+        top = max(g[0] for g in groups)
+        groups = [g for g in groups if g[0] >= 0.75 * top]
+        # Temporal consistency over consecutive keyframes.
+        previous = self._consistent
+        consistent: list[tuple[set[int], int]] = []
+        ready: list[tuple[int, float]] = []
+        for _acc, cand, score, group in groups:
+            count = 0
+            for prev_group, prev_count in previous:
+                if group & prev_group:
+                    count = max(count, prev_count + 1)
+            consistent.append((group, count))
+            if count + 1 >= self.config.loop_consistency and cand not in {c for c, _ in ready}:
+                ready.append((cand, score))
+        self._consistent = consistent
+        for cand, score in ready[:3]:
+            if self._verify_and_close(kf, self.map.keyframes[cand], score):
+                self._consistent = []
+                return
+
+    def _verify_and_close(self, kf: Keyframe, cand: Keyframe, score: float) -> bool:
+        """Verify a loop candidate geometrically and close the loop (or merge the maps)."""
+        merge = cand.map_id != kf.map_id
+        record: dict[str, Any] = {
+            "type": "merge" if merge else "loop",
+            "keyframes": [cand.id, kf.id],
+            "frames": [cand.frame, kf.frame],
+            "score": round(float(score), 4),
+            "inliers": 0,
+            "accepted": False,
+            "reason": "",
+        }
+        self._loops.append(record)
+        if self.mono:
+            record["reason"] = "monocular loops need Sim(3) verification (not available)"
+            return False
+        corrected = self._loop_pose(kf, cand, record)
+        if corrected is None:
+            return False
+        m, deg = pose_change(inverse(kf.cam_from_world), inverse(corrected))
+        record["correction_m"] = round(m, 5)
+        record["correction_deg"] = round(deg, 4)
+        record["accepted"] = True
+        record["reason"] = "verified"
+        if merge:
+            self._merge_maps(kf, cand, corrected)
+        self._close_loop(kf, cand, corrected)
+        return True
+
+    def _loop_pose(self, kf: Keyframe, cand: Keyframe, record: dict[str, Any]) -> F64 | None:
+        """``cam_from_world`` of ``kf`` in ``cand``'s map: PnP on the candidate's points, then
+        a guided search of the candidate's neighbourhood; None when it does not hold."""
+        cam = self._camera_checked()
+        has = np.flatnonzero(cand.point_ids >= 0)
+        pairs = match_ratio(cand.descriptors[has], kf.descriptors, 0.75, TH_HIGH)
+        if len(pairs) < 20:
+            record["reason"] = f"{len(pairs)} appearance matches (need 20)"
+            return None
+        pids = cand.point_ids[has[pairs[:, 0]]]
+        est = absolute_pose(
+            cam,
+            kf.keypoints[pairs[:, 1]],
+            self.map.pos[pids],
+            threshold_px=self.config.pnp_threshold_px,
+            min_inliers=20,
+            seed=self.config.seed,
+        )
+        if est is None:
+            record["reason"] = "PnP found fewer than 20 inliers"
+            return None
+        group = [cand] + [self.map.keyframes[k] for k, _ in self.map.covisible(cand)[:10]]
+        ids = np.unique(np.concatenate([g.point_ids[g.point_ids >= 0] for g in group]))
+        ids = ids[self.map.alive[ids] & (self.map.map_id[ids] == cand.map_id)]
+        visible, dist = self._in_view(est.cam_from_world, ids)
+        ids, dist = ids[visible], dist[visible]
+        fake = _Frame(
+            kf.frame, kf.stamp_ns, "", _features_of(kf), kf.keypoints, kf.depth, kf.colors
+        )
+        octv = self.map.predict_octave(ids, dist)
+        pairs = self._project_match(
+            fake, est.cam_from_world, self.map.pos[ids], self.map.desc[ids], octv, 7.5, ratio=0.9
+        )
+        if len(pairs) < self.config.loop_min_inliers:
+            record["inliers"] = len(pairs)
+            record["reason"] = f"{len(pairs)} points matched by the guided search"
+            return None
+        ref = refine_pose(
+            cam,
+            est.cam_from_world,
+            kf.keypoints[pairs[:, 1]],
+            self.map.pos[ids[pairs[:, 0]]],
+            sigma_px=self.map.sigma[kf.octaves[pairs[:, 1]]],
+        )
+        record["inliers"] = 0 if ref is None else ref.num_inliers
+        if ref is None or ref.num_inliers < self.config.loop_min_inliers:
+            record["reason"] = (
+                f"{record['inliers']} inliers after refinement "
+                f"(need {self.config.loop_min_inliers})"
+            )
+            return None
+        return ref.cam_from_world
+
+    def _merge_maps(self, kf: Keyframe, cand: Keyframe, corrected: F64) -> None:
+        """Bring ``kf``'s whole map into ``cand``'s map frame and relabel it."""
+        old_id, new_id = cand.map_id, kf.map_id
+        keep, gone = min(old_id, new_id), max(old_id, new_id)
+        # p_cand_world = inv(corrected) @ cam_from_world(kf) @ p_kf_world
+        w = inverse(corrected) @ kf.cam_from_world
+        if keep == new_id:  # the candidate's map is the newer one: move it instead
+            w = inverse(w)
+        for k in self.map.keyframes:
+            if k.map_id == gone:
+                k.cam_from_world = k.cam_from_world @ inverse(w)
+                k.map_id = keep
+        ids = np.flatnonzero(self.map.map_id[: self.map.n] == gone)
+        self.map.pos[ids] = self.map.pos[ids] @ w[:3, :3].T + w[:3, 3]
+        self.map.map_id[ids] = keep
+        for rec in self._records:
+            if rec.map_id == gone:
+                rec.map_id = keep
+        for m in self._maps:
+            if m["id"] == gone:
+                m["merged_into"] = keep
+        if self._map_id == gone:
+            self._map_id = keep
+        self._merges.append({"maps": [keep, gone], "keyframes": [cand.id, kf.id]})
+        if keep == new_id:
+            # kf's own pose is unchanged; nothing else to correct.
+            return
+
+    def _close_loop(self, kf: Keyframe, cand: Keyframe, corrected: F64) -> None:
+        """ORB-SLAM's CorrectLoop on SE(3): move kf and its neighbours to the loop's pose,
+        fuse the duplicated points, optimise the essential graph and adjust globally."""
+        from slamcli.pose_graph import Edge, optimize_se3
+
+        map_id = cand.map_id
+        connected = [kf] + [self.map.keyframes[k] for k, _ in self.map.covisible(kf)]
+        connected = [k for k in connected if k.map_id == map_id]
+        before = {k.id: k.cam_from_world.copy() for k in self.map.live(map_id)}
+        delta = inverse(kf.cam_from_world) @ corrected  # applied on the world side
+        moved: set[int] = set()
+        for k in connected:
+            new = k.cam_from_world @ delta
+            pids = k.point_ids[k.point_ids >= 0]
+            pids = np.array([p for p in pids.tolist() if p not in moved], np.int64)
+            if pids.size:
+                t = inverse(new) @ k.cam_from_world
+                self.map.pos[pids] = self.map.pos[pids] @ t[:3, :3].T + t[:3, 3]
+                moved.update(pids.tolist())
+            k.cam_from_world = new
+        # Fuse the loop's points into the corrected keyframes.
+        group = [cand] + [self.map.keyframes[k] for k, _ in self.map.covisible(cand)[:10]]
+        loop_ids = np.unique(np.concatenate([g.point_ids[g.point_ids >= 0] for g in group]))
+        loop_ids = loop_ids[self.map.alive[loop_ids]]
+        for k in connected:
+            self._fuse_into(k, loop_ids, radius=4.0)
+        kf.loop_edges.add(cand.id)
+        cand.loop_edges.add(kf.id)
+        # Essential graph: spanning tree, strong covisibility, loops.
+        kfs = self.map.live(map_id)
+        index = {k.id: i for i, k in enumerate(kfs)}
+        init = {k.id: k.cam_from_world.copy() for k in kfs}
+        edges: list[Edge] = []
+        seen: set[tuple[int, int]] = set()
+
+        def add(a: int, b: int, poses: dict[int, F64], kind: str) -> None:
+            if a not in index or b not in index or a == b:
+                return
+            key = (min(a, b), max(a, b))
+            if key in seen:
+                return
+            seen.add(key)
+            rel = poses[a] @ inverse(poses[b])  # a_from_b = cam_a_from_world @ world_from_cam_b
+            edges.append(Edge(index[a], index[b], rel, kind=kind))
+
+        old_or_new = {k: before.get(k, init[k]) for k in init}
+        for k in kfs:
+            if k.parent is not None:
+                add(k.parent, k.id, old_or_new, "tree")
+            for nb, _w in self.map.covisible(k, min_weight=100):
+                add(k.id, nb, old_or_new, "covisibility")
+            for other in k.loop_edges:
+                add(k.id, other, init, "loop")
+        for k in connected:
+            for nb, _w in self.map.covisible(k):
+                if nb in {g.id for g in group}:
+                    add(k.id, nb, init, "loop")
+        first = kfs[0].id
+        world_from = np.stack([inverse(init[k.id]) for k in kfs])
+        result = optimize_se3(world_from, edges, fixed=(index[first],))
+        for k in kfs:
+            k.cam_from_world = inverse(result.poses[index[k.id]])
+        # Points follow the keyframe they were made in (or any that sees them).
+        ids = np.flatnonzero(
+            self.map.alive[: self.map.n] & (self.map.map_id[: self.map.n] == map_id)
+        )
+        for pid in ids.tolist():
+            ref = int(self.map.ref_kf[pid])
+            if ref not in index:
+                views = self.map.obs[pid]
+                ref = next((k for k in views if k in index), -1)
+                if ref < 0:
+                    continue
+                self.map.ref_kf[pid] = ref
+            t = inverse(self.map.keyframes[ref].cam_from_world) @ init[ref]
+            self.map.pos[pid] = t[:3, :3] @ self.map.pos[pid] + t[:3, 3]
+        self._graph_edges = [(kfs[e.a].id, kfs[e.b].id, e.kind) for e in edges]
+        self._counts["essential_graph_optimisations"] += 1
+        if self.config.global_ba:
+            self._global_ba(map_id)
+        # Tracking continues from the corrected keyframe.
+        self._ref_kf = kf
+
+    def _global_ba(self, main: int | None) -> None:
+        if main is None:
+            return
+        kfs = self.map.live(main)
+        if len(kfs) < 2:
+            return
+        pids = np.unique(np.concatenate([k.point_ids[k.point_ids >= 0] for k in kfs]))
+        pids = pids[self.map.alive[pids]]
+        fixed = np.zeros(len(kfs), bool)
+        fixed[0] = True
+        self._bundle(kfs, fixed, pids, 20)
+        self._counts["global_ba"] += 1
+
+    # -- results -----------------------------------------------------------------------------
+
+    def _trajectory(self, main: int | None) -> Trajectory:
+        stamps, poses = [], []
+        for rec in self._records:
+            kf = self.map.keyframes[rec.kf]
+            if kf.map_id != main:
+                self._counts["frames_in_unmerged_maps"] += 1
+                continue
+            pose = rec.cam_from_kf @ self.map.world_pose(kf.id)
+            if self.config.final_pose_refinement and len(rec.pids):
+                alive = self.map.alive[rec.pids] & (self.map.map_id[rec.pids] == main)
+                if np.count_nonzero(alive) >= 10:
+                    est = self._refine(
+                        pose,
+                        rec.kp[alive],
+                        self.map.pos[rec.pids[alive]],
+                        rec.sigma[alive],
+                        rec.depth[alive],
+                    )
+                    if est is not None and est.num_inliers >= 10:
+                        pose = est.cam_from_world
+            stamps.append(rec.stamp_ns)
+            poses.append(inverse(pose))
+        return Trajectory(np.array(stamps, np.int64), np.stack(poses).reshape(-1, 4, 4))
+
+    def _result(self, main: int | None, trajectory: Trajectory) -> SlamResult:
+        kfs = self.map.live(main)
+        keyframes = Trajectory(
+            np.array([k.stamp_ns for k in kfs], np.int64),
+            np.stack([inverse(k.cam_from_world) for k in kfs]).reshape(-1, 4, 4),
+        )
+        alive = np.flatnonzero(
+            self.map.alive[: self.map.n] & (self.map.map_id[: self.map.n] == main)
+        )
+        counts = dict(self._counts)
+        for state in ("tracked", "relocalised", "lost", "initialising", "new_map"):
+            counts.setdefault(f"frames_{state}", 0)
+        counts["keyframes"] = len(kfs)
+        counts["map_points"] = int(alive.size)
+        counts["maps"] = len(self._maps)
+        counts["map_merges"] = len(self._merges)
+        counts["loop_closures_accepted"] = sum(1 for r in self._loops if r["accepted"])
+        counts["loop_closures_rejected"] = sum(1 for r in self._loops if not r["accepted"])
+        stages = {k: v / self._frames for k, v in sorted(self._ms.items())}
+        return SlamResult(
+            trajectory=trajectory,
+            keyframes=keyframes,
+            points=self.map.pos[alive].copy(),
+            point_colors=self.map.color[alive].copy(),
+            metrics={
+                "mode": "mono" if self.mono else "rgbd",
+                "ms_per_frame": stages,
+                "maps": self._maps,
+                "merges": self._merges,
+                "loop_closures": self._loops,
+            },
+            counts=counts,
+        )
+
+    # -- helpers -----------------------------------------------------------------------------
+
+    def _camera_checked(self) -> PinholeCamera:
+        assert self._camera is not None
+        return self._camera
+
+    def _timed(self, stage: str) -> _Timer:
+        return _Timer(self._ms, stage)
+
+    def _initialise_mono(self, cur: _Frame) -> str:
+        """Two-view initialisation: the first frame with enough features is the reference; a
+        later one with enough matches and parallax makes the first two keyframes."""
+        ref = self._init_ref
+        if len(cur.features) < 100:
+            return "initialising"
+        if ref is None:
+            self._init_ref = cur
+            return "initialising"
+        pairs = match_ratio(ref.features.descriptors, cur.features.descriptors, 0.9, TH_HIGH)
+        if len(pairs):
+            moved = np.linalg.norm(ref.keypoints[pairs[:, 0]] - cur.keypoints[pairs[:, 1]], axis=1)
+            # ORB-SLAM searches a 100-pixel window around the reference keypoint.
+            pairs = pairs[moved <= 100.0 * self._window_scale()]
+        if len(pairs) < 100:
+            self._counts["init_too_few_matches"] += 1
+            self._init_ref = cur
+            return "initialising"
+        found = two_view_geometry(
+            self._camera_checked(),
+            ref.keypoints[pairs[:, 0]],
+            cur.keypoints[pairs[:, 1]],
+            self.map.sigma[ref.features.octaves[pairs[:, 0]]],
+            min_parallax_deg=self.config.mono_min_parallax_deg,
+            min_points=self.config.mono_min_points,
+            seed=self.config.seed,
+        )
+        if found.points is None:
+            self._counts[f"init_rejected_{found.reason}"] += 1
+            return "initialising"
+        good = found.good
+        # Scale: median depth 1 in the reference.
+        median = float(np.median(found.points[good, 2]))
+        cur_from_ref = found.cur_from_ref.copy()
+        cur_from_ref[:3, 3] /= median
+        world = found.points[good] / median
+        ref.cam_from_world = np.eye(4)
+        cur.cam_from_world = cur_from_ref
+        kf0 = self._new_keyframe(ref)
+        kf1 = self._new_keyframe(cur)
+        kf1.parent = kf0.id
+        pids = self.map.add_points(kf0, pairs[good, 0], world)
+        for kp, pid in zip(pairs[good, 1].tolist(), pids.tolist(), strict=True):
+            self.map.observe(kf1, kp, pid)
+        self.map.update_geometry(pids)
+        self._bundle([kf0, kf1], np.array([True, False]), pids, 20)
+        # Re-normalise after the adjustment.
+        live = kf0.point_ids[kf0.point_ids >= 0]
+        depths = self.map.pos[live, 2]
+        if live.size < self.config.mono_min_points or not np.all(np.isfinite(depths)):
+            self._counts["init_rejected_after_ba"] += 1
+            self._discard_map(kf0.map_id)
+            return "initialising"
+        scale = 1.0 / float(np.median(depths))
+        self.map.pos[live] *= scale
+        kf1.cam_from_world[:3, 3] *= scale
+        self._maps.append({"id": self._map_id, "first_frame": ref.index, "merged_into": None})
+        self._counts["init_" + found.model] += 1
+        self._init_info = {
+            "model": found.model,
+            "frames": [ref.index, cur.index],
+            "points": int(live.size),
+            "median_parallax_deg": round(found.parallax_deg, 3),
+        }
+        for k in (kf0, kf1):
+            self._index_place(k)
+        self._ref_kf = kf0
+        ref.point_ids = kf0.point_ids.copy()
+        self._record(ref, "tracked")
+        self._ref_kf = kf1
+        cur.point_ids = kf1.point_ids.copy()
+        cur.cam_from_world = kf1.cam_from_world.copy()
+        cur.inliers = int(np.count_nonzero(cur.point_ids >= 0))
+        self._record(cur, "tracked")
+        self._velocity = None
+        self._set_last(cur)
+        self._counts["keyframes_made"] += 2
+        self._counts["frames_tracked"] += 1  # the reference, counted as initialising before
+        self._counts["frames_initialising"] -= 1
+        self._init_ref = None
+        return "tracked"
+
+    def _window_scale(self) -> float:
+        cam = self._camera_checked()
+        return max(1.0, cam.width / 640.0)
+
+    def _discard_map(self, map_id: int) -> None:
+        for k in self.map.keyframes:
+            if k.map_id == map_id and not k.culled:
+                for kp in np.flatnonzero(k.point_ids >= 0).tolist():
+                    self.map.forget(k, kp)
+                k.culled = True
+                k.parent = None
+
+    def _triangulate(self, kf: Keyframe) -> None:
+        """New monocular points: unmatched keypoints of ``kf`` matched to those of its best
+        covisible keyframes, checked against the epipolar line, triangulated, and kept when
+        the rays have parallax, the point is in front of both cameras and reprojects well."""
+        cam = self._camera_checked()
+        neighbours = [self.map.keyframes[k] for k, _ in self.map.covisible(kf)[:20]]
+        c1 = kf.center
+        made = 0
+        for nb in neighbours:
+            free_kf = np.flatnonzero(kf.point_ids < 0)
+            free_nb = np.flatnonzero(nb.point_ids < 0)
+            if free_kf.size == 0 or free_nb.size == 0:
+                break
+            nb_depths = self._median_depth(nb)
+            if not np.isfinite(nb_depths) or np.linalg.norm(nb.center - c1) / nb_depths < 0.01:
+                continue
+            pairs = match_ratio(
+                nb.descriptors[free_nb], kf.descriptors[free_kf], 0.6 if self.mono else 0.8, TH_LOW
+            )
+            if len(pairs) == 0:
+                continue
+            i_nb, i_kf = free_nb[pairs[:, 0]], free_kf[pairs[:, 1]]
+            world, ok = triangulate_checked(
+                cam,
+                kf.cam_from_world,
+                nb.cam_from_world,
+                kf.keypoints[i_kf],
+                nb.keypoints[i_nb],
+                self.map.sigma[kf.octaves[i_kf]],
+                self.map.sigma[nb.octaves[i_nb]],
+            )
+            if not np.any(ok):
+                continue
+            i_kf, i_nb, world = i_kf[ok], i_nb[ok], world[ok]
+            pids = self.map.add_points(kf, i_kf, world)
+            for kp, pid in zip(i_nb.tolist(), pids.tolist(), strict=True):
+                self.map.observe(nb, kp, pid)
+            self.map.update_geometry(pids)
+            made += int(pids.size)
+        self._counts["points_triangulated"] += made
+
+    def _median_depth(self, kf: Keyframe) -> float:
+        pids = kf.point_ids[kf.point_ids >= 0]
+        if pids.size == 0:
+            return float("nan")
+        z = self.map.pos[pids] @ kf.cam_from_world[2, :3] + kf.cam_from_world[2, 3]
+        return float(np.median(z))
+
+
+def _features_of(kf: Keyframe) -> Features:
+    return Features(
+        kf.keypoints.astype(np.float32),
+        kf.octaves,
+        kf.descriptors,
+        np.zeros(len(kf.keypoints), np.float32),
+    )
+
+
+class _Timer:
+    """Adds the milliseconds spent in a ``with`` block to ``totals[stage]``."""
+
+    def __init__(self, totals: dict[str, float], stage: str) -> None:
+        self._totals, self._stage = totals, stage
+
+    def __enter__(self) -> None:
+        self._start = time.perf_counter()
+
+    def __exit__(self, *exc: object) -> None:
+        self._totals[self._stage] += (time.perf_counter() - self._start) * 1e3

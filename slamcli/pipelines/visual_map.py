@@ -1,0 +1,259 @@
+"""The sparse map of the visual pipeline: keyframes, map points and what links them.
+
+Poses of keyframes are kept as ``cam_from_world`` (4, 4) matrices (what projection needs);
+points as world positions. A point records which keyframes observe it and at which keypoint
+(``obs[point] = {keyframe id: keypoint index}``), and each keyframe which point each of its
+keypoints is (``point_ids``, -1 for none); the two are always changed together, through
+:meth:`SparseMap.observe` and :meth:`SparseMap.forget`. Covisibility (how many points two
+keyframes share) is derived from them when asked.
+
+Several maps may exist at once (tracking lost and a new map started); each keyframe and point
+carries its ``map_id``, and merging two maps relabels one.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.vision.matching import hamming
+
+F64 = NDArray[np.float64]
+I64 = NDArray[np.int64]
+
+
+@dataclass
+class Keyframe:
+    """A keyframe.
+
+    Attributes:
+        id: index in :attr:`SparseMap.keyframes`.
+        frame: index of the input frame it was made from.
+        stamp_ns: its stamp.
+        map_id: the map it belongs to.
+        cam_from_world: (4, 4) pose.
+        keypoints: (N, 2) undistorted pixels.
+        octaves: (N,) pyramid levels.
+        descriptors: (N, 32) ORB descriptors.
+        depth: (N,) metres, NaN where unknown (monocular: all NaN).
+        colors: (N, 3) uint8 colour under each keypoint.
+        point_ids: (N,) map point of each keypoint, -1 for none.
+        bow: the bag-of-words vector (vocabulary dependent), or None.
+        parent: the keyframe it hangs from in the spanning tree (None for a map's first).
+        culled: removed as redundant; its pose then follows ``parent`` by ``from_parent``.
+        from_parent: (4, 4) ``cam_from_parentcam`` kept when culled.
+        loop_edges: keyframes it closed a loop with.
+    """
+
+    id: int
+    frame: int
+    stamp_ns: int
+    map_id: int
+    cam_from_world: F64
+    keypoints: F64
+    octaves: NDArray[np.int16]
+    descriptors: NDArray[np.uint8]
+    depth: F64
+    colors: NDArray[np.uint8]
+    point_ids: I64
+    bow: Any = None
+    parent: int | None = None
+    culled: bool = False
+    from_parent: F64 | None = None
+    loop_edges: set[int] = field(default_factory=set)
+
+    @property
+    def center(self) -> F64:
+        """The camera centre in the world."""
+        r = self.cam_from_world[:3, :3]
+        return np.asarray(-r.T @ self.cam_from_world[:3, 3], dtype=np.float64)
+
+
+class SparseMap:
+    """Keyframes and points of all maps of one run."""
+
+    def __init__(self, scale: float, levels: int) -> None:
+        self.keyframes: list[Keyframe] = []
+        self.scale = scale
+        self.levels = levels
+        self.sigma = scale ** np.arange(levels + 1, dtype=np.float64)
+        n = 4096
+        self.pos = np.zeros((n, 3))
+        self.desc = np.zeros((n, 32), np.uint8)
+        self.color = np.zeros((n, 3), np.uint8)
+        self.normal = np.zeros((n, 3))
+        self.dmax = np.zeros(n)
+        self.alive = np.zeros(n, bool)
+        self.visible = np.zeros(n, np.int64)
+        self.found = np.zeros(n, np.int64)
+        self.first_kf = np.zeros(n, np.int64)
+        self.ref_kf = np.zeros(n, np.int64)
+        self.map_id = np.zeros(n, np.int64)
+        self.obs: list[dict[int, int]] = []
+        self.n = 0
+
+    # -- points ------------------------------------------------------------------------------
+
+    def _grow(self, need: int) -> None:
+        cap = self.pos.shape[0]
+        if need <= cap:
+            return
+        new = max(need, cap * 2)
+        for name in (
+            "pos",
+            "desc",
+            "color",
+            "normal",
+            "dmax",
+            "alive",
+            "visible",
+            "found",
+            "first_kf",
+            "ref_kf",
+            "map_id",
+        ):
+            old = getattr(self, name)
+            arr = np.zeros((new, *old.shape[1:]), dtype=old.dtype)
+            arr[:cap] = old
+            setattr(self, name, arr)
+
+    def add_points(self, kf: Keyframe, kp_idx: I64, world: F64) -> I64:
+        """New points at ``world`` (K, 3), observed by ``kf`` at its keypoints ``kp_idx``."""
+        k = len(kp_idx)
+        ids = np.arange(self.n, self.n + k, dtype=np.int64)
+        self._grow(self.n + k)
+        self.n += k
+        self.pos[ids] = world
+        self.desc[ids] = kf.descriptors[kp_idx]
+        self.color[ids] = kf.colors[kp_idx]
+        self.alive[ids] = True
+        self.visible[ids] = 1
+        self.found[ids] = 1
+        self.first_kf[ids] = kf.id
+        self.ref_kf[ids] = kf.id
+        self.map_id[ids] = kf.map_id
+        self.obs.extend({kf.id: kp} for kp in kp_idx.tolist())
+        kf.point_ids[kp_idx] = ids
+        self.update_geometry(ids)
+        return ids
+
+    def observe(self, kf: Keyframe, kp: int, pid: int) -> None:
+        """Record that keypoint ``kp`` of ``kf`` is point ``pid``."""
+        old = int(kf.point_ids[kp])
+        if old == pid:
+            return
+        if old >= 0:
+            self.obs[old].pop(kf.id, None)
+        prev = self.obs[pid].get(kf.id)
+        if prev is not None and prev != kp:
+            kf.point_ids[prev] = -1
+        kf.point_ids[kp] = pid
+        self.obs[pid][kf.id] = kp
+
+    def forget(self, kf: Keyframe, kp: int) -> None:
+        """Remove the observation of keypoint ``kp`` of ``kf``."""
+        pid = int(kf.point_ids[kp])
+        if pid < 0:
+            return
+        kf.point_ids[kp] = -1
+        self.obs[pid].pop(kf.id, None)
+        if not self.obs[pid]:
+            self.alive[pid] = False
+
+    def cull_point(self, pid: int) -> None:
+        for kf_id, kp in list(self.obs[pid].items()):
+            self.keyframes[kf_id].point_ids[kp] = -1
+        self.obs[pid].clear()
+        self.alive[pid] = False
+
+    def replace(self, pid: int, by: int) -> None:
+        """Fuse point ``pid`` into ``by``: its observations move over, it dies."""
+        if pid == by or not self.alive[pid]:
+            return
+        for kf_id, kp in list(self.obs[pid].items()):
+            kf = self.keyframes[kf_id]
+            if kf_id in self.obs[by]:
+                kf.point_ids[kp] = -1
+            else:
+                kf.point_ids[kp] = by
+                self.obs[by][kf_id] = kp
+        self.visible[by] += self.visible[pid]
+        self.found[by] += self.found[pid]
+        self.obs[pid].clear()
+        self.alive[pid] = False
+
+    def update_geometry(self, ids: I64) -> None:
+        """Mean viewing direction, scale range and representative descriptor of points."""
+        for pid in ids.tolist():
+            views = self.obs[pid]
+            if not views:
+                continue
+            p = self.pos[pid]
+            dirs = []
+            for kf_id in views:
+                c = self.keyframes[kf_id].center
+                d = p - c
+                dirs.append(d / max(np.linalg.norm(d), 1e-12))
+            normal = np.mean(dirs, axis=0)
+            self.normal[pid] = normal / max(np.linalg.norm(normal), 1e-12)
+            ref = self.keyframes[int(self.ref_kf[pid])]
+            kp = views.get(ref.id)
+            if kp is None:
+                ref_id, kp = next(iter(views.items()))
+                ref = self.keyframes[ref_id]
+            dist = float(np.linalg.norm(p - ref.center))
+            self.dmax[pid] = dist * self.sigma[int(ref.octaves[kp])]
+            if len(views) >= 3:
+                descs = np.stack([self.keyframes[k].descriptors[i] for k, i in views.items()])
+                d = hamming(descs[:, None, :], descs[None, :, :])
+                self.desc[pid] = descs[int(np.argmin(np.median(d, axis=1)))]
+
+    def predict_octave(self, pid: I64, dist: F64) -> I64:
+        ratio = self.dmax[pid] / np.maximum(dist, 1e-9)
+        oct_ = np.ceil(np.log(np.maximum(ratio, 1e-9)) / math.log(self.scale))
+        return np.clip(oct_, 0, self.levels - 1).astype(np.int64)
+
+    def in_range(self, pid: I64, dist: F64) -> NDArray[np.bool_]:
+        dmin = self.dmax[pid] / self.sigma[self.levels - 1]
+        return (dist >= 0.8 * dmin) & (dist <= 1.2 * self.dmax[pid])
+
+    # -- keyframes ---------------------------------------------------------------------------
+
+    def add_keyframe(self, kf: Keyframe) -> None:
+        self.keyframes.append(kf)
+
+    def live(self, map_id: int | None = None) -> list[Keyframe]:
+        return [
+            k for k in self.keyframes if not k.culled and (map_id is None or k.map_id == map_id)
+        ]
+
+    def covisible(self, kf: Keyframe, min_weight: int = 1) -> list[tuple[int, int]]:
+        """(keyframe id, shared points) of the keyframes sharing points with ``kf``, most
+        shared first (ties: lower id)."""
+        counts: Counter[int] = Counter()
+        for pid in kf.point_ids[kf.point_ids >= 0].tolist():
+            counts.update(self.obs[pid].keys())
+        counts.pop(kf.id, None)
+        out = [
+            (k, w) for k, w in counts.items() if w >= min_weight and not self.keyframes[k].culled
+        ]
+        out.sort(key=lambda kw: (-kw[1], kw[0]))
+        return out
+
+    def world_pose(self, kf_id: int) -> F64:
+        """``cam_from_world`` of a keyframe, following parents of culled ones."""
+        kf = self.keyframes[kf_id]
+        chain = []
+        while kf.culled and kf.parent is not None:
+            assert kf.from_parent is not None
+            chain.append(kf.from_parent)
+            kf = self.keyframes[kf.parent]
+        pose = kf.cam_from_world
+        for rel in reversed(chain):
+            pose = rel @ pose
+        return pose

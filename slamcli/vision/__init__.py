@@ -1,0 +1,1 @@
+"""The vision layer shared by the visual and dense pipelines: ORB features, matching, absolute pose, bundle adjustment and place recognition. Numpy in, numpy out."""

@@ -1,0 +1,149 @@
+"""Matching ORB descriptors: by appearance alone (ratio test) and guided by a pose (search by
+projection, as ORB-SLAM tracks its local map).
+
+Distances are Hamming distances between 256-bit descriptors. Every function returns index
+pairs into its inputs and is deterministic (ties go to the lower index).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import NDArray
+
+I64 = NDArray[np.int64]
+F64 = NDArray[np.float64]
+U8 = NDArray[np.uint8]
+
+_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint16)
+
+#: Hamming distances ORB-SLAM treats as a sure (TH_LOW) and an acceptable (TH_HIGH) match.
+TH_LOW = 50
+TH_HIGH = 100
+
+
+def hamming(a: U8, b: U8) -> NDArray[np.int64]:
+    """Row-wise Hamming distances of two (N, 32) uint8 descriptor arrays (broadcasting)."""
+    return _POPCOUNT[np.bitwise_xor(a, b)].sum(axis=-1, dtype=np.int64)
+
+
+def match_ratio(desc_a: U8, desc_b: U8, ratio: float, max_distance: int = 256) -> I64:
+    """(K, 2) index pairs (a, b) of matches passing Lowe's ratio test, at most one per b.
+
+    Each descriptor of ``b`` takes its nearest neighbour in ``a`` when that is closer than
+    ``ratio`` times the second nearest (and within ``max_distance``); when several ``b`` pick
+    the same ``a``, only the closest keeps it.
+    """
+    import cv2
+
+    if len(desc_a) < 2 or len(desc_b) < 1:
+        return np.zeros((0, 2), dtype=np.int64)
+    pairs = cv2.BFMatcher(cv2.NORM_HAMMING).knnMatch(desc_b, desc_a, k=2)
+    good = [
+        (m[0].trainIdx, m[0].queryIdx, m[0].distance)
+        for m in pairs
+        if len(m) == 2 and m[0].distance < ratio * m[1].distance and m[0].distance <= max_distance
+    ]
+    if not good:
+        return np.zeros((0, 2), dtype=np.int64)
+    arr = np.array(good, dtype=np.float64)
+    return _one_to_one(arr[:, 0].astype(np.int64), arr[:, 1].astype(np.int64), arr[:, 2])
+
+
+def _one_to_one(a: I64, b: I64, dist: NDArray[np.float64]) -> I64:
+    """Keep, for each ``a`` index, only its closest pair (ties: lower b)."""
+    order = np.lexsort((b, dist, a))
+    a, b = a[order], b[order]
+    first = np.r_[True, a[1:] != a[:-1]]
+    out = np.stack([a[first], b[first]], axis=1)
+    return out[np.argsort(out[:, 1], kind="stable")]
+
+
+def match_by_projection(
+    projected: F64,
+    point_desc: U8,
+    radius_px: F64,
+    keypoints: F64,
+    kp_desc: U8,
+    *,
+    kp_octaves: NDArray[np.int16] | None = None,
+    predicted_octaves: NDArray[np.int64] | None = None,
+    max_distance: int = TH_HIGH,
+    ratio: float = 0.9,
+) -> I64:
+    """(K, 2) pairs (point, keypoint): map points projected into an image matched to the
+    image's keypoints within a search radius.
+
+    Args:
+        projected: (P, 2) predicted pixel of each map point.
+        point_desc: (P, 32) the points' representative descriptors.
+        radius_px: (P,) search radius of each point (ORB-SLAM scales it with the octave the
+            point is expected at).
+        keypoints: (N, 2) the image's keypoints, same pixel frame as ``projected``.
+        kp_desc: (N, 32) their descriptors.
+        kp_octaves, predicted_octaves: when given, a keypoint is a candidate only within one
+            pyramid level of the level the point is predicted at.
+        max_distance: largest Hamming distance accepted.
+        ratio: the best candidate must be closer than ``ratio`` times the second best (when the
+            two are at different pyramid levels, as ORB-SLAM, the test is skipped).
+
+    Each keypoint goes to at most one point (the closest in descriptor space).
+    """
+    p, n = len(projected), len(keypoints)
+    if p == 0 or n == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    cell = max(float(np.max(radius_px)), 1.0)
+    # A grid of keypoints by cell, so each point only looks at the cells its radius touches.
+    kx = np.floor(keypoints[:, 0] / cell).astype(np.int64)
+    ky = np.floor(keypoints[:, 1] / cell).astype(np.int64)
+    key = ky * 1_000_003 + kx
+    order = np.argsort(key, kind="stable")
+    skey = key[order]
+    px = np.floor(projected[:, 0] / cell).astype(np.int64)
+    py = np.floor(projected[:, 1] / cell).astype(np.int64)
+    cand_p: list[I64] = []
+    cand_k: list[I64] = []
+    for dy in (-1, 0, 1):
+        for dx in (-1, 0, 1):
+            q = (py + dy) * 1_000_003 + (px + dx)
+            lo = np.searchsorted(skey, q, side="left")
+            hi = np.searchsorted(skey, q, side="right")
+            counts = hi - lo
+            if not counts.any():
+                continue
+            pts = np.repeat(np.arange(p), counts)
+            offs = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
+            cand_p.append(pts)
+            cand_k.append(order[np.repeat(lo, counts) + offs])
+    if not cand_p:
+        return np.zeros((0, 2), dtype=np.int64)
+    cp, ck = np.concatenate(cand_p), np.concatenate(cand_k)
+    d2 = np.sum((keypoints[ck] - projected[cp]) ** 2, axis=1)
+    ok = d2 <= radius_px[cp] ** 2
+    if kp_octaves is not None and predicted_octaves is not None:
+        ok &= np.abs(kp_octaves[ck].astype(np.int64) - predicted_octaves[cp]) <= 1
+    cp, ck = cp[ok], ck[ok]
+    if cp.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    dist = hamming(point_desc[cp], kp_desc[ck])
+    # Best and second best per point.
+    order = np.lexsort((ck, dist, cp))
+    cp, ck, dist = cp[order], ck[order], dist[order]
+    first = np.r_[True, cp[1:] != cp[:-1]]
+    best = np.flatnonzero(first)
+    nxt = best + 1
+    has_second = (nxt < cp.size) & np.r_[~first[1:], False][best]
+    second = np.full(best.size, np.iinfo(np.int64).max)
+    second[has_second] = dist[nxt[has_second]]
+    keep = dist[best] <= max_distance
+    if kp_octaves is not None:
+        same_level = np.ones(best.size, dtype=bool)
+        same_level[has_second] = kp_octaves[ck[best[has_second]]] == kp_octaves[ck[nxt[has_second]]]
+        keep &= ~same_level | (dist[best] < ratio * second)
+    else:
+        keep &= dist[best] < ratio * second
+    bp, bk, bd = cp[best[keep]], ck[best[keep]], dist[best[keep]]
+    if bp.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    # One point per keypoint: the closest descriptor wins.
+    out = _one_to_one(bk, bp, bd.astype(np.float64))
+    return out[:, ::-1][np.argsort(out[:, 1], kind="stable")]

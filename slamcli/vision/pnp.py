@@ -1,0 +1,291 @@
+"""Absolute pose from 2-D/3-D correspondences, and the gates that judge a pose.
+
+:func:`absolute_pose` is COLMAP's LO-RANSAC P3P followed by a robust (Cauchy) non-linear
+refinement (``pycolmap.estimate_and_refine_absolute_pose``), seeded so that the same input
+gives the same pose. :func:`refine_pose` is the refinement alone, for a pose already close
+(tracking with a motion prior). Poses cross this module as (4, 4) ``cam_from_world`` or
+``world_from_cam`` float64 matrices, as each function says; pycolmap objects never leave it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.geometry import compose, inverse, rotation_angle
+from slamcli.geometry.se3 import se3_exp
+from slamcli.types import PinholeCamera
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class PoseEstimate:
+    """A camera pose and the correspondences it explains.
+
+    Attributes:
+        cam_from_world: (4, 4) float64.
+        inliers: (M,) bool, which correspondences fit within the threshold.
+    """
+
+    cam_from_world: F64
+    inliers: NDArray[np.bool_]
+
+    @property
+    def world_from_cam(self) -> F64:
+        return inverse(self.cam_from_world)
+
+    @property
+    def num_inliers(self) -> int:
+        return int(np.count_nonzero(self.inliers))
+
+
+def _camera(camera: PinholeCamera) -> Any:
+    import pycolmap
+
+    return pycolmap.Camera(
+        model="PINHOLE",
+        width=camera.width,
+        height=camera.height,
+        params=[camera.fx, camera.fy, camera.cx, camera.cy],
+    )
+
+
+def _to_matrix(rigid: Any) -> F64:
+    m = np.eye(4)
+    m[:3, :4] = np.asarray(rigid.matrix(), dtype=np.float64)
+    return m
+
+
+def _to_rigid(cam_from_world: F64) -> Any:
+    import pycolmap
+
+    return pycolmap.Rigid3d(np.ascontiguousarray(cam_from_world[:3, :4], dtype=np.float64))
+
+
+def absolute_pose(
+    camera: PinholeCamera,
+    pixels: F64,
+    points: F64,
+    *,
+    threshold_px: float = 4.0,
+    min_inliers: int = 15,
+    seed: int = 0,
+    max_trials: int = 1000,
+) -> PoseEstimate | None:
+    """Pose of a pinhole camera that sees world ``points`` (M, 3) at ``pixels`` (M, 2), by
+    LO-RANSAC and refinement; None when fewer than ``min_inliers`` correspondences agree.
+
+    ``pixels`` are undistorted (``camera`` is treated as a pinhole). ``seed`` seeds COLMAP's
+    RANSAC sampler.
+    """
+    import pycolmap
+
+    pixels = np.ascontiguousarray(pixels, dtype=np.float64).reshape(-1, 2)
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pixels) < max(4, min_inliers):
+        return None
+    est = pycolmap.AbsolutePoseEstimationOptions()
+    est.ransac.max_error = float(threshold_px)
+    est.ransac.random_seed = int(seed)
+    est.ransac.max_num_trials = int(max_trials)
+    est.ransac.min_num_trials = min(100, int(max_trials))
+    est.ransac.num_threads = 1
+    ref = pycolmap.AbsolutePoseRefinementOptions()
+    ref.loss_function_scale = float(threshold_px) / 2.0
+    result = pycolmap.estimate_and_refine_absolute_pose(pixels, points, _camera(camera), est, ref)
+    if result is None:
+        return None
+    mask = np.asarray(result["inlier_mask"], dtype=bool).reshape(-1)
+    if np.count_nonzero(mask) < min_inliers:
+        return None
+    return PoseEstimate(_to_matrix(result["cam_from_world"]), mask)
+
+
+def reprojection_errors(
+    camera: PinholeCamera, cam_from_world: F64, pixels: F64, points: F64
+) -> F64:
+    """(M,) pixel distance between ``pixels`` and the projections of ``points``; inf for
+    points behind the camera."""
+    p = points @ cam_from_world[:3, :3].T + cam_from_world[:3, 3]
+    z = p[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = camera.fx * p[:, 0] / z + camera.cx
+        v = camera.fy * p[:, 1] / z + camera.cy
+    err = np.hypot(u - pixels[:, 0], v - pixels[:, 1])
+    err[~(z > 1e-6)] = np.inf
+    return np.asarray(err, dtype=np.float64)
+
+
+def refine_pose(
+    camera: PinholeCamera,
+    cam_from_world: F64,
+    pixels: F64,
+    points: F64,
+    *,
+    sigma_px: F64 | None = None,
+    threshold_px: float = 5.991**0.5,
+    rounds: int = 3,
+) -> PoseEstimate | None:
+    """Refine a pose close to the truth against all correspondences with a robust (Cauchy)
+    loss, re-deciding the inliers between rounds (as ORB-SLAM's pose optimisation does: four
+    rounds of optimisation with the outliers of the last one left out).
+
+    ``sigma_px`` (M,) is each observation's pixel uncertainty (the ORB octave's scale); an
+    observation is an inlier when its error is within ``threshold_px * sigma``. Returns None
+    when the refinement fails or leaves fewer than 4 inliers.
+    """
+    import pycolmap
+
+    pixels = np.ascontiguousarray(pixels, dtype=np.float64).reshape(-1, 2)
+    points = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pixels) < 4:
+        return None
+    sigma = np.ones(len(pixels)) if sigma_px is None else np.asarray(sigma_px, dtype=np.float64)
+    cam = _camera(camera)
+    pose = np.asarray(cam_from_world, dtype=np.float64)
+    inliers = reprojection_errors(camera, pose, pixels, points) <= 2 * threshold_px * sigma
+    opts = pycolmap.AbsolutePoseRefinementOptions()
+    opts.loss_function_scale = float(threshold_px)
+    for _ in range(rounds):
+        if np.count_nonzero(inliers) < 4:
+            return None
+        out = pycolmap.refine_absolute_pose(
+            _to_rigid(pose), pixels, points, inliers.reshape(-1, 1), cam, opts
+        )
+        if out is None:
+            return None
+        pose = _to_matrix(out["cam_from_world"])
+        inliers = reprojection_errors(camera, pose, pixels, points) <= threshold_px * sigma
+    if np.count_nonzero(inliers) < 4:
+        return None
+    return PoseEstimate(pose, inliers)
+
+
+def pose_change(a: F64, b: F64) -> tuple[float, float]:
+    """Translation (m) and rotation (deg) of ``b`` relative to ``a`` (two (4, 4) poses)."""
+    rel = compose(inverse(a), b)
+    return float(np.linalg.norm(rel[:3, 3])), math.degrees(float(rotation_angle(rel)))
+
+
+def within(a: F64, b: F64, max_m: float, max_deg: float) -> bool:
+    """Whether ``b`` is within ``max_m`` and ``max_deg`` of ``a``."""
+    m, deg = pose_change(a, b)
+    return m <= max_m and deg <= max_deg
+
+
+def refine_pose_depth(
+    camera: PinholeCamera,
+    cam_from_world: F64,
+    pixels: F64,
+    points: F64,
+    depth: F64,
+    *,
+    sigma_px: F64 | None = None,
+    baseline_m: float = 0.08,
+    rounds: int = 4,
+    iterations: int = 10,
+) -> PoseEstimate | None:
+    """Refine a pose against 2-D/3-D correspondences where the keypoints may also carry a
+    measured depth, as ORB-SLAM's RGB-D pose optimisation does.
+
+    A keypoint with depth ``z`` is treated as a stereo observation ``(u, v, u - bf / z)`` of a
+    virtual rig with baseline ``baseline_m`` (``bf = fx * baseline``): the depth then constrains
+    the pose with the weight a stereo camera's disparity would, which is what pins down the
+    translation when the camera mostly turns. A keypoint without depth (NaN) gives the usual
+    ``(u, v)``. Gauss-Newton on SE(3) with Huber weights, ``rounds`` rounds of ``iterations``
+    with the outliers of a round (chi-square above 5.99 for two, 7.81 for three residuals, in
+    units of ``sigma_px``) left out of the next. pycolmap's refinement has no depth term, so
+    this one is written out here; it is small (6 unknowns) and vectorised.
+    """
+    pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    z_meas = np.asarray(depth, dtype=np.float64).reshape(-1)
+    m = len(pixels)
+    if m < 4:
+        return None
+    sigma = np.ones(m) if sigma_px is None else np.asarray(sigma_px, dtype=np.float64)
+    info = 1.0 / sigma**2
+    stereo = np.isfinite(z_meas) & (z_meas > 0)
+    bf = camera.fx * baseline_m
+    ur_meas = np.where(stereo, pixels[:, 0] - bf / np.where(stereo, z_meas, 1.0), 0.0)
+    th = np.where(stereo, 7.815, 5.991)
+    pose = np.array(cam_from_world, dtype=np.float64)
+    inlier = np.ones(m, dtype=bool)
+    chi2 = np.zeros(m)
+    for _ in range(rounds):
+        for _ in range(iterations):
+            res, jac, front = _stereo_residuals(camera, pose, points, pixels, ur_meas, stereo, bf)
+            chi2 = np.sum(res**2, axis=1) * info
+            use = inlier & front
+            if np.count_nonzero(use) < 4:
+                return None
+            # Huber weights on the whitened norm.
+            norm = np.sqrt(chi2)
+            delta = np.sqrt(th)
+            w = np.where(norm <= delta, 1.0, delta / np.maximum(norm, 1e-12)) * info
+            w = np.where(use, w, 0.0)
+            jw = jac * w[:, None, None]
+            h = np.einsum("mri,mrj->ij", jw, jac)
+            g = np.einsum("mri,mr->i", jw, res)
+            try:
+                step = -np.linalg.solve(h, g)
+            except np.linalg.LinAlgError:
+                return None
+            pose = se3_exp(step) @ pose
+            if float(np.linalg.norm(step)) < 1e-9:
+                break
+        res, _, front = _stereo_residuals(camera, pose, points, pixels, ur_meas, stereo, bf)
+        chi2 = np.sum(res**2, axis=1) * info
+        inlier = front & (chi2 <= th)
+    if np.count_nonzero(inlier) < 4:
+        return None
+    # Products of many small rotations drift off SO(3) in the last bits: project back.
+    u, _, vt = np.linalg.svd(pose[:3, :3])
+    pose[:3, :3] = u @ vt
+    return PoseEstimate(pose, inlier)
+
+
+def _stereo_residuals(
+    camera: PinholeCamera,
+    pose: F64,
+    points: F64,
+    pixels: F64,
+    ur_meas: F64,
+    stereo: NDArray[np.bool_],
+    bf: float,
+) -> tuple[F64, F64, NDArray[np.bool_]]:
+    """(M, 3) residuals (predicted - measured; the third 0 without depth), (M, 3, 6)
+    Jacobians for a left perturbation [rho, phi], and which points are in front."""
+    pc = points @ pose[:3, :3].T + pose[:3, 3]
+    x, y, z = pc[:, 0], pc[:, 1], pc[:, 2]
+    front = z > 1e-6
+    zs = np.where(front, z, 1.0)
+    fx, fy = camera.fx, camera.fy
+    u = fx * x / zs + camera.cx
+    v = fy * y / zs + camera.cy
+    ur = u - bf / zs
+    res = np.zeros((len(points), 3))
+    res[:, 0] = u - pixels[:, 0]
+    res[:, 1] = v - pixels[:, 1]
+    res[:, 2] = np.where(stereo, ur - ur_meas, 0.0)
+    # d(u, v, ur)/d(pc)
+    dproj = np.zeros((len(points), 3, 3))
+    dproj[:, 0, 0] = fx / zs
+    dproj[:, 0, 2] = -fx * x / zs**2
+    dproj[:, 1, 1] = fy / zs
+    dproj[:, 1, 2] = -fy * y / zs**2
+    dproj[:, 2] = dproj[:, 0]
+    dproj[:, 2, 2] += bf / zs**2
+    dproj[~stereo, 2] = 0.0
+    # d(pc)/d[rho, phi] = [I, -[pc]x]
+    dpc = np.zeros((len(points), 3, 6))
+    dpc[:, 0, 0] = dpc[:, 1, 1] = dpc[:, 2, 2] = 1.0
+    dpc[:, 0, 4], dpc[:, 0, 5] = z, -y
+    dpc[:, 1, 3], dpc[:, 1, 5] = -z, x
+    dpc[:, 2, 3], dpc[:, 2, 4] = y, -x
+    return res, np.einsum("mij,mjk->mik", dproj, dpc), front
