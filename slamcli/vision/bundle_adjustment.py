@@ -62,6 +62,8 @@ logger = logging.getLogger(__name__)
 
 CHI2_INLIER = 5.991
 """95 % χ² quantile with two degrees of freedom: the inlier gate on the whitened error."""
+CHI2_STEREO = 9.488
+"""95 % χ² quantile with four degrees of freedom: the gate of an observation with depth."""
 MAX_SIGMA_GROUPS = 32
 """Distinct per-observation sigmas kept exactly; beyond, they are snapped to this many levels."""
 
@@ -109,6 +111,8 @@ def bundle_adjust(
     robust_loss: Literal["huber", "cauchy"] = "cauchy",
     max_iterations: int = 10,
     fix_gauge: bool = True,
+    obs_depth: ArrayLike | None = None,
+    baseline_m: float = 0.08,
 ) -> BundleResult:
     """Refine keyframe poses and points by minimising robust whitened reprojection errors.
 
@@ -127,6 +131,12 @@ def bundle_adjust(
         robust_loss: "cauchy" (default, see the module docstring) or "huber".
         max_iterations: Levenberg-Marquardt iterations at most, >= 1.
         fix_gauge: hold the first keyframe and the scale when nothing else fixes the gauge.
+        obs_depth: (M,) measured depth (m) of each observation (RGB-D), NaN where none. An
+            observation with depth is also observed by a virtual right camera ``baseline_m``
+            to the right, at ``(u - fx * baseline / z, v)``: ORB-SLAM's RGB-D residual, which
+            lets the depth hold points and translations where reprojections alone are weak.
+            Its ``obs_chi2`` is then the sum of both cameras' (gate 9.49, four residuals).
+        baseline_m: the virtual stereo baseline.
 
     Returns:
         A :class:`BundleResult`; the inputs are not modified.
@@ -156,6 +166,13 @@ def bundle_adjust(
     if max_iterations < 1:
         raise ValueError(f"bundle_adjust: max_iterations must be >= 1, got {max_iterations}")
 
+    if obs_depth is not None:
+        depth = np.asarray(obs_depth, dtype=np.float64).reshape(-1)
+        if depth.shape != prob.obs_frame.shape:
+            raise ValueError(
+                f"bundle_adjust: obs_depth must be ({prob.obs_frame.size},), got {depth.shape}"
+            )
+        prob = _with_stereo(prob, depth, baseline_m)
     chi2_before = _chi2(prob, prob.poses, prob.points)
     fixed_f = prob.fixed_frames.copy()
     observed_f = np.zeros(prob.poses.shape[0], dtype=bool)
@@ -177,16 +194,34 @@ def bundle_adjust(
         # fixed and unobserved frames (and points) are handed back as they came.
         poses[~free_f] = prob.poses[~free_f]
         pts[~free_p] = prob.points[~free_p]
-        if fix_gauge and np.count_nonzero(fixed_f & observed_f) < 2 and not prob.fixed_points.any():
+        # Depth fixes the scale itself; without it, the input's scale is kept.
+        if (
+            fix_gauge
+            and prob.right is None
+            and np.count_nonzero(fixed_f & observed_f) < 2
+            and not prob.fixed_points.any()
+        ):
             poses, pts = _restore_scale(prob.poses, poses, pts, fixed_f & observed_f, free_f)
 
     chi2_after = _chi2(prob, poses, pts)
     rho = _huber if robust_loss == "huber" else _cauchy
+    gate: F64 = np.full(chi2_after.shape, CHI2_INLIER)
+    if prob.right is not None and prob.right_of is not None:
+        m = prob.n_obs
+        right_of = prob.right_of
+        # Fold each right-camera residual into its observation.
+        chi2_obs = chi2_after[:m].copy()
+        np.add.at(chi2_obs, right_of, chi2_after[m:])
+        before_obs = chi2_before[:m].copy()
+        np.add.at(before_obs, right_of, chi2_before[m:])
+        gate = np.full(m, CHI2_INLIER)
+        gate[right_of] = CHI2_STEREO
+        chi2_after, chi2_before = chi2_obs, before_obs
     return BundleResult(
         cam_from_world=poses,
         points=pts,
         obs_chi2=chi2_after,
-        inlier=chi2_after < CHI2_INLIER,
+        inlier=chi2_after < gate,
         initial_cost=_cost(rho, chi2_before, robust_px),
         final_cost=_cost(rho, chi2_after, robust_px),
         iterations=iterations,
@@ -208,6 +243,35 @@ class _Problem:
     obs_sigma: F64
     fixed_frames: BoolArray
     fixed_points: BoolArray
+    # Virtual stereo: observations n_obs.. are right-camera copies of rows right_of, and
+    # right[i] says which observations are right-camera ones.
+    right: BoolArray | None = None
+    right_of: I64 | None = None
+    n_obs: int = 0
+    baseline_m: float = 0.0
+
+
+def _with_stereo(prob: _Problem, depth: F64, baseline_m: float) -> _Problem:
+    """The problem with a right-camera observation appended for each observation with depth."""
+    from dataclasses import replace
+
+    has = np.flatnonzero(np.isfinite(depth) & (depth > 0))
+    m = prob.obs_frame.size
+    uv_r = prob.obs_uv[has].copy()
+    uv_r[:, 0] -= prob.camera.fx * baseline_m / depth[has]
+    right = np.zeros(m + has.size, dtype=bool)
+    right[m:] = True
+    return replace(
+        prob,
+        obs_frame=np.concatenate([prob.obs_frame, prob.obs_frame[has]]),
+        obs_point=np.concatenate([prob.obs_point, prob.obs_point[has]]),
+        obs_uv=np.concatenate([prob.obs_uv, uv_r]),
+        obs_sigma=np.concatenate([prob.obs_sigma, prob.obs_sigma[has]]),
+        right=right,
+        right_of=has,
+        n_obs=m,
+        baseline_m=baseline_m,
+    )
 
 
 def _check_problem(
@@ -299,6 +363,8 @@ def _chi2(prob: _Problem, poses: F64, pts: F64) -> F64:
     r = poses[prob.obs_frame, :3, :3]
     t = poses[prob.obs_frame, :3, 3]
     pc = np.einsum("mij,mj->mi", r, pts[prob.obs_point]) + t
+    if prob.right is not None:
+        pc[prob.right, 0] -= prob.baseline_m
     z = pc[:, 2]
     front = z > 0.0
     safe = np.where(front, z, 1.0)
@@ -388,28 +454,40 @@ def _solve_colmap(
 
     cam = prob.camera
     levels, group = _sigma_groups(prob.obs_sigma)
+    sides = 2 if prob.right is not None else 1
+    if prob.right is not None:
+        # Right-camera copies are groups of their own: camera G + g is group g's right eye.
+        group = group + levels.size * prob.right.astype(np.int64)
     rec = pycolmap.Reconstruction()
     rig = pycolmap.Rig(rig_id=1)
     sensors = []
-    for g, s in enumerate(levels):
-        colmap_cam = pycolmap.Camera(
-            camera_id=g + 1,
-            model="PINHOLE",
-            width=max(1, int(np.ceil(cam.width / s))),
-            height=max(1, int(np.ceil(cam.height / s))),
-            params=[cam.fx / s, cam.fy / s, cam.cx / s, cam.cy / s],
-        )
-        rec.add_camera(colmap_cam)
-        sensors.append(colmap_cam.sensor_id)
+    for side in range(sides):
+        for g, s in enumerate(levels):
+            colmap_cam = pycolmap.Camera(
+                camera_id=side * levels.size + g + 1,
+                model="PINHOLE",
+                width=max(1, int(np.ceil(cam.width / s))),
+                height=max(1, int(np.ceil(cam.height / s))),
+                params=[cam.fx / s, cam.fy / s, cam.cx / s, cam.cy / s],
+            )
+            rec.add_camera(colmap_cam)
+            sensors.append(colmap_cam.sensor_id)
     # Images of the rig's reference sensor get COLMAP's plain reprojection cost; the others get
     # the rig cost, whose autodiff also runs over the (constant) sensor_from_rig and takes about
     # four times as long: the most frequent sigma is the reference.
-    ref = int(np.argmax(np.bincount(group, minlength=levels.size)))
+    # (The reference must be a left eye: the rig's frame is the keyframe's camera.)
+    ref = int(np.argmax(np.bincount(group, minlength=len(sensors))[: levels.size]))
     rig.add_ref_sensor(sensors[ref])
+    right_from_rig = np.eye(4)[:3]
+    right_from_rig[0, 3] = -prob.baseline_m
     for g, sensor in enumerate(sensors):
         if g != ref:
-            rig.add_sensor(sensor, pycolmap.Rigid3d())
+            offset = g >= levels.size
+            rig.add_sensor(
+                sensor, pycolmap.Rigid3d(right_from_rig) if offset else pycolmap.Rigid3d()
+            )
     rec.add_rig(rig)
+    levels = np.tile(levels, sides)
 
     # One image per (frame, sigma group) that has observations; observations sorted so that
     # each image's points2D are a contiguous run.
