@@ -101,12 +101,18 @@ def _run_into(
             # Planar pipelines start at the log's ground-truth pose when it has one.
             if spec.evaluation == "se2":
                 pipe.set_start(source.start_pose())
+            # A pipeline may choose what to read by what the source holds (visual: RGB-D or
+            # colour only), and with it how it is scored.
+            kinds = (
+                pipe.frame_kinds(info) if hasattr(pipe, "frame_kinds") else pipeline_cls.consumes
+            )
+        evaluation = getattr(pipe, "evaluation", spec.evaluation)
         # info's count is an estimate for some formats (MCAP pairs by log time there): it sizes
         # the progress bar but never limits the run.
         total = info.frames if max_frames is None else min(info.frames, max_frames)
         frames = 0
         with timings.stage("track"):
-            for frame in itertools.islice(source.frames(pipeline_cls.consumes), max_frames):
+            for frame in itertools.islice(source.frames(kinds), max_frames):
                 pipe.process(frame)
                 frames += 1
                 if progress:
@@ -129,13 +135,13 @@ def _run_into(
 
     # The pipeline's own figures (per-stage ms/frame, loop closures, ...) plus the evaluation.
     metrics: dict[str, Any] = dict(result.metrics)
-    metrics["alignment"] = spec.evaluation
-    if spec.evaluation == "se2":
+    metrics["alignment"] = evaluation
+    if evaluation == "se2":
         metrics.update(_evaluate_planar(groundtruth, true_landmarks, result, run, timings))
         outputs.append(run.file("report.png"))
     elif groundtruth is not None:
         metrics.update(
-            _evaluate(groundtruth, result.trajectory, run, timings, spec.evaluation, result.mesh)
+            _evaluate(groundtruth, result.trajectory, run, timings, evaluation, result.mesh)
         )
         if "report.png" in run.outputs:
             outputs.append(run.file("report.png"))
@@ -183,7 +189,7 @@ def _run_into(
         counts,
         outputs,
         list(stats.data_loss),
-        evaluation=spec.evaluation,
+        evaluation=evaluation,
     )
 
 
