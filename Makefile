@@ -2,7 +2,7 @@
 # make test         - set everything up and run the test suite
 # make constraints  - re-resolve the newest releases pyproject.toml allows into constraints.txt
 # make fuzz         - run FUZZ_CASES seeded damaged inputs through the commands (minutes)
-# make vocabulary   - retrain the shipped ORB vocabulary slamcli/data/orb_vocabulary.npz (~30 min)
+# make vocabulary   - retrain the shipped ORB vocabulary slamcli/data/orb_vocabulary.npz (~20 min)
 PYTHON ?= python3
 VENV   ?= .venv
 PY     := $(VENV)/bin/python
