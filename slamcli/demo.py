@@ -4,9 +4,12 @@
    then an occupancy map built from that run (``map.yaml``/``map.pgm``/``map.png``);
 2. a path planned across that map between two far-apart free places, smoothed, timed and
    followed by a simulated differential-drive robot;
-3. EKF landmark SLAM on ``sample_data/landmarks``.
+3. EKF landmark SLAM on ``sample_data/landmarks``;
+4. feature-based visual SLAM on the same RGB-D sequence (trajectory, keyframes, coloured
+   points, pose graph), to set beside the dense run.
 
-Each goes into its own folder under the demo's output: ``dense/``, ``plan/``, ``ekf/``.
+Each goes into its own folder under the demo's output: ``dense/``, ``plan/``, ``ekf/``,
+``visual/``.
 """
 
 from __future__ import annotations
@@ -44,7 +47,7 @@ def default_landmarks() -> Path:
 
 @dataclass
 class DemoOutcome:
-    """What the demo made: the dense run (with its map), the plan and the EKF run."""
+    """What the demo made: the dense run (with its map), the plan, the EKF and visual runs."""
 
     dense: RunOutcome
     map_files: list[Path]
@@ -54,6 +57,7 @@ class DemoOutcome:
     start_xy: tuple[float, float]
     goal_xy: tuple[float, float]
     ekf: RunOutcome
+    visual: RunOutcome
 
 
 def run_demo(
@@ -63,14 +67,14 @@ def run_demo(
     force: bool = False,
     progress: ProgressFn | None = None,
 ) -> DemoOutcome:
-    """Run the three jobs of the module docstring into ``out``."""
+    """Run the four jobs of the module docstring into ``out``."""
     from slamcli.mapping.output import map_run
     from slamcli.planning.output import write_plan
     from slamcli.planning.planner import plan
 
     rgbd = _existing(data, default_sample(), "rgbd")
     world = _existing(landmarks, default_landmarks(), "landmarks")
-    # The three jobs go into one staged folder: a failed or interrupted demo leaves an earlier
+    # The jobs go into one staged folder: a failed or interrupted demo leaves an earlier
     # demo folder whole, never a new dense run beside an old plan.
     with RunDir(out, force=force) as root:
         dense = run_pipeline(
@@ -83,6 +87,7 @@ def run_demo(
         with RunDir(root.staged("plan")) as plan_dir:
             plan_files = write_plan(result, plan_dir, map_file)
         ekf = run_pipeline(world, "ekf", root.staged("ekf"), command="demo")
+        visual = run_pipeline(rgbd, "visual", root.staged("visual"), command="demo")
         _relocate_records(root)
     return DemoOutcome(
         _final_run(root, dense),
@@ -93,6 +98,7 @@ def run_demo(
         start,
         goal,
         _final_run(root, ekf),
+        _final_run(root, visual),
     )
 
 

@@ -281,8 +281,8 @@ def _evaluate_planar(
 
 
 def _write_products(run: RunDir, result: SlamResult, glb: bool) -> list[Path]:
-    """keyframes.tum, landmarks.csv, mesh.ply (and .glb) and points.ply, for what the pipeline
-    made."""
+    """keyframes.tum, landmarks.csv, mesh.ply (and .glb), graph.g2o and points.ply, for what
+    the pipeline made."""
     from slamcli.formats.trajectory import write_tum
 
     written = []
@@ -302,6 +302,11 @@ def _write_products(run: RunDir, result: SlamResult, glb: bool) -> list[Path]:
             from slamcli.formats.mesh import write_glb
 
             written.append(write_glb(run.output("mesh.glb"), result.mesh))
+    if result.pose_graph is not None and len(result.pose_graph[0]):
+        from slamcli.pose_graph import save_g2o
+
+        poses, edges = result.pose_graph
+        written.append(save_g2o(run.output("graph.g2o"), poses, edges, fixed=(0,)))
     if result.points is not None and len(result.points):
         from slamcli.formats.mesh import write_points_ply
 

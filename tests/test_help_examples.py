@@ -34,6 +34,7 @@ ORDER = [
     "vocab info",
     "run odometry",
     "run dense",
+    "run visual",
     "run ekf",
     "config dump",
     "info",

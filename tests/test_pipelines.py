@@ -30,8 +30,8 @@ def test_declaration_matches_the_class(name: str) -> None:
 
 
 def test_unknown_pipeline_names_the_known_ones() -> None:
-    with pytest.raises(ConfigError, match="unknown pipeline 'visual'") as err:
-        get_spec("visual")
+    with pytest.raises(ConfigError, match="unknown pipeline 'sparse'") as err:
+        get_spec("sparse")
     assert "odometry" in (err.value.hint or "")
 
 

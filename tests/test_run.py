@@ -22,7 +22,7 @@ def test_demo_writes_an_accurate_run(tmp_path: Path) -> None:
     root = tmp_path / "demo"
     res = runner.invoke(app, ["demo", "--out", str(root)])
     assert res.exit_code == 0, res.output
-    assert {p.name for p in root.iterdir()} == {"dense", "plan", "ekf"}
+    assert {p.name for p in root.iterdir()} == {"dense", "plan", "ekf", "visual"}
     out = root / "dense"
     products = {"trajectory.tum", "keyframes.tum", "mesh.ply", "mesh.glb", "points.ply"}
     maps = {"map.yaml", "map.pgm", "map.png", "map.json"}
@@ -59,13 +59,24 @@ def test_demo_writes_an_accurate_run(tmp_path: Path) -> None:
     ekf = json.loads((root / "ekf" / "run.json").read_text())["metrics"]
     assert ekf["evaluation"]["ate"]["rmse"] < 0.2 * ekf["dead_reckoning"]["ate"]["rmse"]
     assert ekf["evaluation"]["landmarks"]["matched"] == 40
+    # Visual SLAM on the same RGB-D sequence: every frame tracked, close to the truth.
+    visual = json.loads((root / "visual" / "run.json").read_text())
+    assert visual["counts"]["frames_tracked"] == 30
+    assert visual["metrics"]["evaluation"]["ate"]["rmse"] < 0.01
+    assert {"trajectory.tum", "keyframes.tum", "points.ply", "graph.g2o"} <= set(visual["outputs"])
 
 
 def test_demo_is_deterministic_and_refuses_to_clobber(tmp_path: Path) -> None:
     first, second = tmp_path / "a", tmp_path / "b"
     assert runner.invoke(app, ["demo", "--out", str(first)]).exit_code == 0
     assert runner.invoke(app, ["demo", "--out", str(second)]).exit_code == 0
-    for name in ("dense/trajectory.tum", "dense/map.pgm", "plan/path.csv", "ekf/trajectory.tum"):
+    for name in (
+        "dense/trajectory.tum",
+        "dense/map.pgm",
+        "plan/path.csv",
+        "ekf/trajectory.tum",
+        "visual/trajectory.tum",
+    ):
         assert (first / name).read_bytes() == (second / name).read_bytes(), name
     a = (first / "dense" / "trajectory.tum").read_bytes()
     res = runner.invoke(app, ["demo", "--out", str(first)])

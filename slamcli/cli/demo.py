@@ -35,7 +35,9 @@ def demo(
     map (map.yaml, map.pgm, map.png) built from the run;
     2. plan/: a path across that map between two far-apart free places, smoothed, timed and
     followed by a simulated robot (path.csv, trajectory.csv, plan.json, plan.png);
-    3. ekf/: EKF landmark SLAM on the sample landmark world, with landmarks.csv and a report.
+    3. ekf/: EKF landmark SLAM on the sample landmark world, with landmarks.csv and a report;
+    4. visual/: feature-based visual SLAM on the same RGB-D sequence (ORB features, local
+    bundle adjustment, loop closure), with keyframes, coloured points and the pose graph.
     Exits with 3 when frames had to be skipped.
 
     Example: [bold]slamcli demo --out runs/demo --force[/]
@@ -55,5 +57,8 @@ def demo(
     render.written(outcome.plan_files)
     render.heading("3. EKF landmark SLAM")
     render.run_summary(outcome.ekf)
+    render.heading("4. Visual SLAM (ORB features, bundle adjustment, loop closure)")
+    render.run_summary(outcome.visual)
     exit_if_data_lost(outcome.dense, outcome.dense.input_path)
     exit_if_data_lost(outcome.ekf, outcome.ekf.input_path)
+    exit_if_data_lost(outcome.visual, outcome.visual.input_path)

@@ -74,7 +74,7 @@ F32 = NDArray[np.float32]
 MAP_FILES = ("map.yaml", "map.pgm", "map.png", "map.json")
 """What :func:`write_map` writes into a folder."""
 
-MAP_KINDS = {"dense": "depth", "odometry": "depth", "ekf": "landmarks"}
+MAP_KINDS = {"dense": "depth", "odometry": "depth", "visual": "depth", "ekf": "landmarks"}
 """The map each pipeline's runs get: from depth frames, or from landmark observations."""
 
 FREE_THRESH = 0.196
@@ -237,6 +237,13 @@ def _map_kind(run: RunRecord) -> str:
     if run.pipeline not in MAP_KINDS:
         raise InputError(
             f"{run.path}: a {run.pipeline} run; maps are built from runs of {', '.join(MAP_KINDS)}",
+        )
+    metrics = run.record.get("metrics")
+    if isinstance(metrics, dict) and metrics.get("mode") == "mono":
+        raise InputError(
+            f"{run.path}: a monocular visual run: its map has no metric scale, so it cannot be "
+            "laid on a metric occupancy grid",
+            hint="build maps from RGB-D runs (slamcli run visual on an input with depth)",
         )
     return MAP_KINDS[run.pipeline]
 

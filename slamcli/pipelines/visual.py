@@ -93,7 +93,9 @@ class VisualConfig:
     fast_threshold: int = setting(
         12, help="FAST corner threshold; corners are ranked and spread afterwards", min=1, max=100
     )
-    depth_min_m: float = setting(0.1, help="depth readings nearer than this are ignored", unit="m")
+    depth_min_m: float = setting(
+        0.1, help="depth readings nearer than this are ignored", unit="m", min=0.0
+    )
     depth_max_m: float = setting(
         4.0, help="depth readings further than this are ignored", unit="m", gt=0.0
     )
@@ -120,8 +122,8 @@ class VisualConfig:
     loop_closure: bool = setting(True, help="detect and close loops")
     vocabulary: str = setting(
         "default",
-        help="bag-of-words vocabulary: 'default' (shipped with slamcli), 'self' (trained on "
-        "the input's own frames in a first pass), or a file made by 'slamcli vocab train'",
+        help="bag-of-words vocabulary for loop closure and relocalisation: 'default' (shipped "
+        "with slamcli, see slamcli/data/VOCABULARY.md) or a file made by 'slamcli vocab train'",
     )
     loop_consistency: int = setting(
         3,
@@ -1405,6 +1407,7 @@ class VisualSlam:
         return SlamResult(
             trajectory=trajectory,
             keyframes=keyframes,
+            pose_graph=(keyframes.world_from_body, self._essential_graph(kfs)),
             points=self.map.pos[alive].copy(),
             point_colors=self.map.color[alive].copy(),
             metrics={
@@ -1416,6 +1419,31 @@ class VisualSlam:
             },
             counts=counts,
         )
+
+    def _essential_graph(self, kfs: list[Keyframe]) -> list[Any]:
+        """The final essential graph of keyframes ``kfs`` (edges between their indices):
+        spanning tree, strong covisibility (100 shared points) and loop edges, measured by
+        the final poses."""
+        from slamcli.pose_graph import Edge
+
+        index = {k.id: i for i, k in enumerate(kfs)}
+        edges: list[Edge] = []
+        seen: set[tuple[int, int]] = set()
+        for k in kfs:
+            links = [(k.parent, "tree")] if k.parent is not None else []
+            links += [(nb, "covisibility") for nb, _w in self.map.covisible(k, min_weight=100)]
+            links += [(other, "loop") for other in sorted(k.loop_edges)]
+            for other, kind in links:
+                if other not in index or other == k.id:
+                    continue
+                key = (min(other, k.id), max(other, k.id))
+                if key in seen:
+                    continue
+                seen.add(key)
+                a, b = self.map.keyframes[key[0]], self.map.keyframes[key[1]]
+                rel = a.cam_from_world @ inverse(b.cam_from_world)
+                edges.append(Edge(index[a.id], index[b.id], rel, kind=kind))
+        return edges
 
     # -- helpers -----------------------------------------------------------------------------
 
