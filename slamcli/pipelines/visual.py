@@ -46,6 +46,7 @@ import time
 from collections import defaultdict
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -73,8 +74,6 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 _CHI2_2D = 5.991
-# Virtual stereo baseline of an RGB-D keypoint's depth (ORB-SLAM's bf / fx for a Kinect).
-_BASELINE_M = 0.08
 
 
 @dataclass(frozen=True)
@@ -98,6 +97,14 @@ class VisualConfig:
     )
     depth_max_m: float = setting(
         4.0, help="depth readings further than this are ignored", unit="m", gt=0.0
+    )
+    depth_baseline_m: float = setting(
+        0.16,
+        help="RGB-D: a keypoint's depth is weighed as the disparity of a stereo pair with this "
+        "baseline (ORB-SLAM uses 0.08 for a Kinect); larger trusts depth more",
+        unit="m",
+        gt=0.0,
+        max=1.0,
     )
     keyframe_track_ratio: float = setting(
         0.75,
@@ -463,7 +470,9 @@ class VisualSlam:
         cam = self._camera_checked()
         if self.mono:
             return refine_pose(cam, pose, kp, world, sigma_px=sigma)
-        return refine_pose_depth(cam, pose, kp, world, depth, sigma_px=sigma)
+        return refine_pose_depth(
+            cam, pose, kp, world, depth, sigma_px=sigma, baseline_m=self.config.depth_baseline_m
+        )
 
     def _track_reference(self, cur: _Frame) -> F64 | None:
         """Match the reference keyframe's points by appearance; PnP."""
@@ -564,9 +573,10 @@ class VisualSlam:
         """Keyframes seeing the frame's points (most shared first), then their neighbours."""
         from collections import Counter
 
-        counts: Counter[int] = Counter()
-        for pid in cur.point_ids[cur.point_ids >= 0].tolist():
-            counts.update(self.map.obs[pid].keys())
+        obs = self.map.obs
+        counts: Counter[int] = Counter(
+            chain.from_iterable(obs[p] for p in cur.point_ids[cur.point_ids >= 0].tolist())
+        )
         first = sorted(
             (k for k in counts if not self.map.keyframes[k].culled),
             key=lambda k: (-counts[k], k),
@@ -823,7 +833,7 @@ class VisualSlam:
         sig = self.map.sigma[kf.octaves[pairs[:, 1]]]
         z_kp = kf.depth[pairs[:, 1]]
         stereo = np.isfinite(z_kp)
-        bf = cam.fx * _BASELINE_M
+        bf = cam.fx * self.config.depth_baseline_m
         disp = np.where(stereo, bf / p[:, 2] - bf / np.where(stereo, z_kp, 1.0), 0.0)
         pairs = pairs[err2 + disp**2 <= np.where(stereo, 7.815, _CHI2_2D) * sig**2]
         n = 0
@@ -938,6 +948,7 @@ class VisualSlam:
             fixed_frames=fixed,
             max_iterations=iterations,
             obs_depth=None if self.mono else np.asarray(dep, np.float64),
+            baseline_m=self.config.depth_baseline_m,
         )
         for i, k in enumerate(kfs):
             if not fixed[i]:
@@ -947,7 +958,7 @@ class VisualSlam:
         for b in bad.tolist():
             self.map.forget(kfs[of[b]], okp[b])
         self._counts["ba_outliers_removed"] += int(bad.size)
-        self.map.update_geometry(pids[self.map.alive[pids]])
+        self.map.update_geometry(pids[self.map.alive[pids]], descriptors=False)
 
     def _cull_keyframes(self, kf: Keyframe) -> None:
         """A covisible keyframe whose points are 90% seen by three others at the same or a

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import math
 from collections import Counter
+from itertools import chain
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -187,31 +188,43 @@ class SparseMap:
         self.obs[pid].clear()
         self.alive[pid] = False
 
-    def update_geometry(self, ids: I64) -> None:
-        """Mean viewing direction, scale range and representative descriptor of points."""
-        for pid in ids.tolist():
-            views = self.obs[pid]
-            if not views:
-                continue
-            p = self.pos[pid]
-            dirs = []
-            for kf_id in views:
-                c = self.keyframes[kf_id].center
-                d = p - c
-                dirs.append(d / max(np.linalg.norm(d), 1e-12))
-            normal = np.mean(dirs, axis=0)
-            self.normal[pid] = normal / max(np.linalg.norm(normal), 1e-12)
-            ref = self.keyframes[int(self.ref_kf[pid])]
-            kp = views.get(ref.id)
-            if kp is None:
-                ref_id, kp = next(iter(views.items()))
-                ref = self.keyframes[ref_id]
-            dist = float(np.linalg.norm(p - ref.center))
-            self.dmax[pid] = dist * self.sigma[int(ref.octaves[kp])]
+    def update_geometry(self, ids: I64, descriptors: bool = True) -> None:
+        """Mean viewing direction and scale range of points (and, with ``descriptors``, the
+        representative descriptor: the observation closest to all others, for points seen at
+        least three times)."""
+        ids = np.asarray(ids, dtype=np.int64)
+        if ids.size == 0:
+            return
+        pairs = [(i, k, kp) for i, p in enumerate(ids.tolist()) for k, kp in self.obs[p].items()]
+        if not pairs:
+            return
+        table = np.array(pairs, dtype=np.int64)
+        row, kf_ids, kps = table[:, 0], table[:, 1], table[:, 2]
+        centers = np.stack([self.keyframes[k].center for k in range(len(self.keyframes))])
+        d = self.pos[ids[row]] - centers[kf_ids]
+        d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+        normal = np.zeros((ids.size, 3))
+        np.add.at(normal, row, d)
+        seen = np.bincount(row, minlength=ids.size) > 0
+        norm = np.linalg.norm(normal, axis=1, keepdims=True)
+        self.normal[ids[seen]] = (normal / np.maximum(norm, 1e-12))[seen]
+        # Scale range from the reference keyframe's observation (or the first one).
+        ref = self.ref_kf[ids[row]]
+        first = np.r_[True, row[1:] != row[:-1]]
+        use = np.where(kf_ids == ref, 0, 1) * 2 + np.where(first, 0, 1)
+        order = np.lexsort((use, row))
+        pick = order[np.r_[True, row[order][1:] != row[order][:-1]]]
+        octave = np.array([self.keyframes[k].octaves[kp] for k, kp in zip(kf_ids[pick], kps[pick])])
+        dist = np.linalg.norm(self.pos[ids[row[pick]]] - centers[kf_ids[pick]], axis=1)
+        self.dmax[ids[row[pick]]] = dist * self.sigma[octave.astype(np.int64)]
+        if not descriptors:
+            return
+        for p in ids.tolist():
+            views = self.obs[p]
             if len(views) >= 3:
                 descs = np.stack([self.keyframes[k].descriptors[i] for k, i in views.items()])
-                d = hamming(descs[:, None, :], descs[None, :, :])
-                self.desc[pid] = descs[int(np.argmin(np.median(d, axis=1)))]
+                dd = hamming(descs[:, None, :], descs[None, :, :])
+                self.desc[p] = descs[int(np.argmin(np.median(dd, axis=1)))]
 
     def predict_octave(self, pid: I64, dist: F64) -> I64:
         ratio = self.dmax[pid] / np.maximum(dist, 1e-9)
@@ -235,9 +248,10 @@ class SparseMap:
     def covisible(self, kf: Keyframe, min_weight: int = 1) -> list[tuple[int, int]]:
         """(keyframe id, shared points) of the keyframes sharing points with ``kf``, most
         shared first (ties: lower id)."""
-        counts: Counter[int] = Counter()
-        for pid in kf.point_ids[kf.point_ids >= 0].tolist():
-            counts.update(self.obs[pid].keys())
+        obs = self.obs
+        counts: Counter[int] = Counter(
+            chain.from_iterable(obs[p] for p in kf.point_ids[kf.point_ids >= 0].tolist())
+        )
         counts.pop(kf.id, None)
         out = [
             (k, w) for k, w in counts.items() if w >= min_weight and not self.keyframes[k].culled

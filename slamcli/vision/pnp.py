@@ -229,15 +229,16 @@ def refine_pose_depth(
             delta = np.sqrt(th)
             w = np.where(norm <= delta, 1.0, delta / np.maximum(norm, 1e-12)) * info
             w = np.where(use, w, 0.0)
-            jw = jac * w[:, None, None]
-            h = np.einsum("mri,mrj->ij", jw, jac)
-            g = np.einsum("mri,mr->i", jw, res)
+            flat = jac.reshape(-1, 6)
+            jw = flat * np.repeat(w, 3)[:, None]
+            h = jw.T @ flat
+            g = jw.T @ res.reshape(-1)
             try:
                 step = -np.linalg.solve(h, g)
             except np.linalg.LinAlgError:
                 return None
             pose = se3_exp(step) @ pose
-            if float(np.linalg.norm(step)) < 1e-9:
+            if float(np.linalg.norm(step)) < 1e-7:
                 break
         res, _, front = _stereo_residuals(camera, pose, points, pixels, ur_meas, stereo, bf)
         chi2 = np.sum(res**2, axis=1) * info
@@ -288,4 +289,4 @@ def _stereo_residuals(
     dpc[:, 0, 4], dpc[:, 0, 5] = z, -y
     dpc[:, 1, 3], dpc[:, 1, 5] = -z, x
     dpc[:, 2, 3], dpc[:, 2, 4] = y, -x
-    return res, np.einsum("mij,mjk->mik", dproj, dpc), front
+    return res, np.matmul(dproj, dpc), front
