@@ -214,7 +214,12 @@ class SparseMap:
         use = np.where(kf_ids == ref, 0, 1) * 2 + np.where(first, 0, 1)
         order = np.lexsort((use, row))
         pick = order[np.r_[True, row[order][1:] != row[order][:-1]]]
-        octave = np.array([self.keyframes[k].octaves[kp] for k, kp in zip(kf_ids[pick], kps[pick])])
+        octave = np.array(
+            [
+                self.keyframes[k].octaves[kp]
+                for k, kp in zip(kf_ids[pick].tolist(), kps[pick].tolist(), strict=True)
+            ]
+        )
         dist = np.linalg.norm(self.pos[ids[row[pick]]] - centers[kf_ids[pick]], axis=1)
         self.dmax[ids[row[pick]]] = dist * self.sigma[octave.astype(np.int64)]
         if not descriptors:
