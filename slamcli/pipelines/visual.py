@@ -1177,21 +1177,252 @@ class VisualSlam:
             "reason": "",
         }
         self._loops.append(record)
+        scale = 1.0
         if self.mono:
-            record["reason"] = "monocular loops need Sim(3) verification (not available)"
-            return False
-        corrected = self._loop_pose(kf, cand, record)
-        if corrected is None:
-            return False
+            found = self._loop_sim3(kf, cand, record)
+            if found is None:
+                return False
+            corrected, scale = found
+            record["scale"] = round(scale, 5)
+        else:
+            pose = self._loop_pose(kf, cand, record)
+            if pose is None:
+                return False
+            corrected = pose
         m, deg = pose_change(inverse(kf.cam_from_world), inverse(corrected))
         record["correction_m"] = round(m, 5)
         record["correction_deg"] = round(deg, 4)
         record["accepted"] = True
         record["reason"] = "verified"
         if merge:
-            self._merge_maps(kf, cand, corrected)
-        self._close_loop(kf, cand, corrected)
+            self._merge_maps(kf, cand, corrected, scale)
+            # The maps are one now, kf already where the loop puts it.
+            corrected, scale = kf.cam_from_world.copy(), 1.0
+        if self.mono:
+            self._close_loop_sim3(kf, cand, corrected, scale)
+        else:
+            self._close_loop(kf, cand, corrected)
         return True
+
+    def _loop_sim3(
+        self, kf: Keyframe, cand: Keyframe, record: dict[str, Any]
+    ) -> tuple[F64, float] | None:
+        """Monocular loop verification: the similarity between the two keyframes' point
+        clouds by RANSAC over matched map points (scale drifts in a monocular map), then a
+        guided search of the candidate's neighbourhood with the pose it implies. Returns
+        kf's corrected ``cam_from_world`` in the candidate's map and the scale that takes kf's
+        map units to the candidate's."""
+        from slamcli.geometry.align import umeyama
+
+        cam = self._camera_checked()
+        a = np.flatnonzero(cand.point_ids >= 0)
+        b = np.flatnonzero(kf.point_ids >= 0)
+        pairs = match_ratio(cand.descriptors[a], kf.descriptors[b], 0.75, TH_HIGH)
+        if len(pairs) < 20:
+            record["reason"] = f"{len(pairs)} appearance matches (need 20)"
+            return None
+        ia, ib = a[pairs[:, 0]], b[pairs[:, 1]]
+        pa = self.map.pos[cand.point_ids[ia]]
+        pb = self.map.pos[kf.point_ids[ib]]
+        ca = pa @ cand.cam_from_world[:3, :3].T + cand.cam_from_world[:3, 3]
+        cb = pb @ kf.cam_from_world[:3, :3].T + kf.cam_from_world[:3, 3]
+        sig_a = self.map.sigma[cand.octaves[ia]]
+        sig_b = self.map.sigma[kf.octaves[ib]]
+        rng = np.random.default_rng(self.config.seed)
+        best: tuple[int, NDArray[np.bool_]] = (0, np.zeros(len(pairs), bool))
+        for _ in range(300):
+            pick = rng.choice(len(pairs), 3, replace=False)
+            try:
+                r, t, sc = umeyama(cb[pick], ca[pick], with_scale=True)
+            except InputError:
+                continue
+            ok = self._sim3_inliers(cam, r, t, sc, ca, cb, cand, kf, ia, ib, sig_a, sig_b)
+            n = int(np.count_nonzero(ok))
+            if n > best[0]:
+                best = (n, ok)
+        if best[0] < 20:
+            record["reason"] = f"Sim(3) RANSAC found {best[0]} inliers (need 20)"
+            return None
+        r, t, sc = umeyama(cb[best[1]], ca[best[1]], with_scale=True)
+        # cand_from_kf as a similarity; kf's camera in cand's world, for projection.
+        cand_from_kf = np.eye(4)
+        cand_from_kf[:3, :3] = r
+        cand_from_kf[:3, 3] = t
+        rigid = np.eye(4)
+        rigid[:3, :3] = r.T
+        rigid[:3, 3] = -r.T @ t
+        pose = rigid @ cand.cam_from_world
+        group = [cand] + [self.map.keyframes[k] for k, _ in self.map.covisible(cand)[:10]]
+        ids = np.unique(np.concatenate([g.point_ids[g.point_ids >= 0] for g in group]))
+        ids = ids[self.map.alive[ids] & (self.map.map_id[ids] == cand.map_id)]
+        # Distances in kf's own units: the in-range test must not reject them by scale.
+        p = self.map.pos[ids] @ pose[:3, :3].T + pose[:3, 3]
+        front = ids[p[:, 2] > 0]
+        fake = _Frame(
+            kf.frame, kf.stamp_ns, "", _features_of(kf), kf.keypoints, kf.depth, kf.colors
+        )
+        octv = np.clip(
+            self.map.predict_octave(
+                front, np.linalg.norm(self.map.pos[front] - inverse(pose)[:3, 3], axis=1)
+            ),
+            0,
+            self.map.levels - 1,
+        )
+        found = self._project_match(
+            fake, pose, self.map.pos[front], self.map.desc[front], octv, 7.5, ratio=0.9
+        )
+        record["inliers"] = len(found)
+        if len(found) < self.config.loop_min_inliers:
+            record["reason"] = f"{len(found)} points matched by the guided search"
+            return None
+        ref = refine_pose(
+            cam,
+            pose,
+            kf.keypoints[found[:, 1]],
+            self.map.pos[front[found[:, 0]]],
+            sigma_px=self.map.sigma[kf.octaves[found[:, 1]]],
+        )
+        record["inliers"] = 0 if ref is None else ref.num_inliers
+        if ref is None or ref.num_inliers < self.config.loop_min_inliers:
+            record["reason"] = (
+                f"{record['inliers']} inliers after refinement "
+                f"(need {self.config.loop_min_inliers})"
+            )
+            return None
+        return ref.cam_from_world, float(sc)
+
+    def _sim3_inliers(
+        self,
+        cam: PinholeCamera,
+        r: F64,
+        t: F64,
+        sc: float,
+        ca: F64,
+        cb: F64,
+        cand: Keyframe,
+        kf: Keyframe,
+        ia: I64,
+        ib: I64,
+        sig_a: F64,
+        sig_b: F64,
+    ) -> NDArray[np.bool_]:
+        """Correspondences whose points reproject within the χ² gate both ways."""
+        in_a = sc * cb @ r.T + t
+        in_b = (ca - t) @ r / sc
+        ok = (in_a[:, 2] > 0) & (in_b[:, 2] > 0)
+        err = np.full(len(ca), np.inf)
+        za, zb = np.where(ok, in_a[:, 2], 1.0), np.where(ok, in_b[:, 2], 1.0)
+        ua = np.stack([cam.fx * in_a[:, 0] / za + cam.cx, cam.fy * in_a[:, 1] / za + cam.cy], 1)
+        ub = np.stack([cam.fx * in_b[:, 0] / zb + cam.cx, cam.fy * in_b[:, 1] / zb + cam.cy], 1)
+        ea = np.sum((ua - cand.keypoints[ia]) ** 2, axis=1) / sig_a**2
+        eb = np.sum((ub - kf.keypoints[ib]) ** 2, axis=1) / sig_b**2
+        err = np.where(ok, np.maximum(ea, eb), np.inf)
+        return np.asarray(err < 9.21, dtype=bool)
+
+    def _close_loop_sim3(self, kf: Keyframe, cand: Keyframe, corrected: F64, scale: float) -> None:
+        """ORB-SLAM's monocular CorrectLoop: kf and its neighbours move to the loop's
+        similarity, their points with them; the essential graph is optimised on Sim(3)
+        (GTSAM), every keyframe's points follow its scale, then a global bundle adjustment."""
+        from slamcli.pose_graph import Edge, optimize_sim3
+
+        map_id = cand.map_id
+        kfs = self.map.live(map_id)
+        index = {k.id: i for i, k in enumerate(kfs)}
+        connected = [kf] + [self.map.keyframes[k] for k, _ in self.map.covisible(kf)]
+        connected = [k for k in connected if k.map_id == map_id and k.id in index]
+        old = {k.id: inverse(k.cam_from_world) for k in kfs}  # world_from_cam, rigid
+        # Similarities world_from_node: kf's corrected one has the loop's scale (its map units
+        # are 1/scale of the candidate's).
+        sim = {k.id: old[k.id].copy() for k in kfs}
+        sc = {k.id: 1.0 for k in kfs}
+        kf_new = inverse(corrected)
+        for k in connected:
+            rel = kf.cam_from_world @ old[k.id]  # kf_from_k, rigid, kf's units
+            m = kf_new.copy()
+            m[:3, :3] *= scale
+            m = m @ rel
+            s_k = float(np.cbrt(np.linalg.det(m[:3, :3])))
+            pose = np.eye(4)
+            pose[:3, :3] = m[:3, :3] / s_k
+            pose[:3, 3] = m[:3, 3]
+            sim[k.id], sc[k.id] = pose, s_k
+        edges: list[Edge] = []
+        seen: set[tuple[int, int]] = set()
+
+        def add(a: int, b: int, use_new: bool, kind: str) -> None:
+            if a not in index or b not in index or a == b:
+                return
+            key = (min(a, b), max(a, b))
+            if key in seen:
+                return
+            seen.add(key)
+            if use_new:
+                wa, wb = _sim_matrix(sim[a], sc[a]), _sim_matrix(sim[b], sc[b])
+            else:
+                wa, wb = old[a], old[b]
+            rel = np.linalg.inv(wa) @ wb
+            s_ab = float(np.cbrt(np.linalg.det(rel[:3, :3])))
+            r = np.eye(4)
+            r[:3, :3] = rel[:3, :3] / s_ab
+            r[:3, 3] = rel[:3, 3]
+            edges.append(Edge(index[a], index[b], r, scale=s_ab, kind=kind))
+
+        group = {cand.id} | {k for k, _ in self.map.covisible(cand)[:10]}
+        for k in kfs:
+            if k.parent is not None:
+                add(k.parent, k.id, False, "tree")
+            for nb, _w in self.map.covisible(k, min_weight=100):
+                add(k.id, nb, False, "covisibility")
+            for other in k.loop_edges:
+                add(k.id, other, True, "loop")
+        add(kf.id, cand.id, True, "loop")
+        for k in connected:
+            for g in group:
+                if g in index and any(
+                    g in self.map.obs[p] for p in k.point_ids[k.point_ids >= 0][:50].tolist()
+                ):
+                    add(k.id, g, True, "loop")
+        kf.loop_edges.add(cand.id)
+        cand.loop_edges.add(kf.id)
+        poses = np.stack([sim[k.id] for k in kfs])
+        scales = np.array([sc[k.id] for k in kfs])
+        result = optimize_sim3(poses, scales, edges, fixed=(index[cand.id],))
+        assert result.scales is not None
+        # Points follow their reference keyframe: into its old frame, out through the new
+        # similarity.
+        ids = np.flatnonzero(
+            self.map.alive[: self.map.n] & (self.map.map_id[: self.map.n] == map_id)
+        )
+        for pid in ids.tolist():
+            ref = int(self.map.ref_kf[pid])
+            if ref not in index:
+                ref = next((k for k in self.map.obs[pid] if k in index), -1)
+                if ref < 0:
+                    continue
+                self.map.ref_kf[pid] = ref
+            i = index[ref]
+            local = self.map.keyframes[ref].cam_from_world
+            p = local[:3, :3] @ self.map.pos[pid] + local[:3, 3]
+            w = result.poses[i]
+            self.map.pos[pid] = result.scales[i] * (w[:3, :3] @ p) + w[:3, 3]
+        for k in kfs:
+            k.cam_from_world = inverse(result.poses[index[k.id]])
+        # Frames hang from their keyframe in its units: those change by its scale.
+        for rec in self._records:
+            if rec.kf in index:
+                rec.cam_from_kf[:3, 3] *= result.scales[index[rec.kf]]
+        # Duplicated points of the loop are fused into the corrected keyframes.
+        loop_ids = np.unique(
+            np.concatenate([self.map.keyframes[g].point_ids for g in sorted(group)])
+        )
+        loop_ids = loop_ids[(loop_ids >= 0)]
+        loop_ids = loop_ids[self.map.alive[loop_ids]]
+        for k in connected:
+            self._fuse_into(k, loop_ids, radius=4.0)
+        self._counts["essential_graph_optimisations"] += 1
+        if self.config.global_ba:
+            self._global_ba(map_id)
+        self._ref_kf = kf
 
     def _loop_pose(self, kf: Keyframe, cand: Keyframe, record: dict[str, Any]) -> F64 | None:
         """``cam_from_world`` of ``kf`` in ``cand``'s map: PnP on the candidate's points, then
@@ -1246,17 +1477,23 @@ class VisualSlam:
             return None
         return ref.cam_from_world
 
-    def _merge_maps(self, kf: Keyframe, cand: Keyframe, corrected: F64) -> None:
-        """Bring ``kf``'s whole map into ``cand``'s map frame and relabel it."""
+    def _merge_maps(self, kf: Keyframe, cand: Keyframe, corrected: F64, scale: float) -> None:
+        """Bring the newer of the two keyframes' maps into the older one's frame (by the
+        loop's rigid transform, or similarity for monocular maps) and relabel it."""
         old_id, new_id = cand.map_id, kf.map_id
         keep, gone = min(old_id, new_id), max(old_id, new_id)
-        # p_cand_world = inv(corrected) @ cam_from_world(kf) @ p_kf_world
-        w = inverse(corrected) @ kf.cam_from_world
+        # A point of kf's map, in kf's camera, times scale, is where the candidate's map
+        # sees it from the corrected pose.
+        scaled = np.diag([scale, scale, scale, 1.0]) @ kf.cam_from_world
+        w: F64 = inverse(corrected) @ scaled
         if keep == new_id:  # the candidate's map is the newer one: move it instead
-            w = inverse(w)
+            w = np.asarray(np.linalg.inv(w), dtype=np.float64)
+        s = float(np.cbrt(np.linalg.det(w[:3, :3])))
         for k in self.map.keyframes:
             if k.map_id == gone:
-                k.cam_from_world = k.cam_from_world @ inverse(w)
+                moved = w @ inverse(k.cam_from_world)
+                moved[:3, :3] /= s
+                k.cam_from_world = inverse(moved)
                 k.map_id = keep
         ids = np.flatnonzero(self.map.map_id[: self.map.n] == gone)
         self.map.pos[ids] = self.map.pos[ids] @ w[:3, :3].T + w[:3, 3]
@@ -1264,15 +1501,16 @@ class VisualSlam:
         for rec in self._records:
             if rec.map_id == gone:
                 rec.map_id = keep
+                if s != 1.0:
+                    rec.cam_from_kf[:3, 3] *= s
         for m in self._maps:
             if m["id"] == gone:
                 m["merged_into"] = keep
         if self._map_id == gone:
             self._map_id = keep
-        self._merges.append({"maps": [keep, gone], "keyframes": [cand.id, kf.id]})
-        if keep == new_id:
-            # kf's own pose is unchanged; nothing else to correct.
-            return
+        self._merges.append(
+            {"maps": [keep, gone], "keyframes": [cand.id, kf.id], "scale": round(s, 5)}
+        )
 
     def _close_loop(self, kf: Keyframe, cand: Keyframe, corrected: F64) -> None:
         """ORB-SLAM's CorrectLoop on SE(3): move kf and its neighbours to the loop's pose,
@@ -1606,6 +1844,13 @@ class VisualSlam:
             return float("nan")
         z = self.map.pos[pids] @ kf.cam_from_world[2, :3] + kf.cam_from_world[2, 3]
         return float(np.median(z))
+
+
+def _sim_matrix(pose: F64, scale: float) -> F64:
+    """The 4x4 similarity [[scale R, t], [0, 1]] of a rigid pose and a scale."""
+    m = pose.copy()
+    m[:3, :3] = pose[:3, :3] * scale
+    return m
 
 
 def _features_of(kf: Keyframe) -> Features:
