@@ -76,12 +76,19 @@ def test_open_kwargs_pass_only_what_was_set() -> None:
     assert opts.open_kwargs() == {"max_dt": 0.03, "camera": "fr2", "strict": True}
 
 
-def test_missing_depth_list_exits_1(tmp_path: Path) -> None:
+def test_missing_colour_list_exits_1(tmp_path: Path) -> None:
+    folder = write_tum_folder(tmp_path / "d")
+    (folder / "rgb.txt").unlink()
+    res = invoke(folder)
+    assert res.exit_code == 1
+    _assert_one_line_error(res.stderr, "no rgb.txt")
+
+
+def test_colour_only_folder_is_described_with_its_limit(tmp_path: Path) -> None:
     folder = write_tum_folder(tmp_path / "d")
     (folder / "depth.txt").unlink()
     res = invoke(folder)
-    assert res.exit_code == 1
-    _assert_one_line_error(res.stderr, "no depth.txt")
+    assert "no depth.txt: colour only" in res.output + res.stderr
 
 
 def test_missing_input_and_bad_camera_exit_1(tmp_path: Path) -> None:

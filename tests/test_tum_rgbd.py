@@ -222,11 +222,24 @@ def test_malformed_list_line_names_file_and_line(tmp_path: Path, line: str, matc
         TumRgbdSource.open(folder)
 
 
-def test_missing_depth_list_names_what_is_missing(tmp_path: Path) -> None:
+def test_colour_only_folder_has_images_but_no_rgbd_frames(tmp_path: Path) -> None:
     folder = write_tum_folder(tmp_path / "d")
     (folder / "depth.txt").unlink()
     assert TumRgbdSource.sniff(folder)
-    with pytest.raises(InputError, match=r"no depth\.txt \(found rgb\.txt\)"):
+    with open_source(folder) as src:
+        info = src.info()
+        assert [s.kind for s in info.streams if s.kind in ("image", "depth")] == ["image"]
+        assert any("no depth.txt" in p for p in info.problems)
+        assert sum(1 for _ in src.frames(("image",))) == len(src.rgb_list)
+        with pytest.raises(InputError, match=r"no depth\.txt: colour only"):
+            next(iter(src.frames(("rgbd",))))
+
+
+def test_missing_colour_list_names_what_is_missing(tmp_path: Path) -> None:
+    folder = write_tum_folder(tmp_path / "d")
+    (folder / "rgb.txt").unlink()
+    assert TumRgbdSource.sniff(folder)
+    with pytest.raises(InputError, match=r"no rgb\.txt \(found depth\.txt\)"):
         open_source(folder)
 
 

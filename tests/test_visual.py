@@ -251,11 +251,6 @@ def test_rgbd_mode_on_colour_only_source_is_a_config_error() -> None:
     assert "mode=mono" in (exc.value.hint or "")
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="TumRgbdSource refuses a folder without depth.txt ('TUM RGB-D folder has no "
-    "depth.txt'), so a colour-only TUM folder never reaches the visual pipeline",
-)
 def test_colour_only_tum_folder_cli(tmp_path: Path) -> None:
     folder = colour_only_copy(ROOM, tmp_path / "colour")
     res = runner.invoke(app, ["run", "visual", str(folder), "--out", str(tmp_path / "auto")])

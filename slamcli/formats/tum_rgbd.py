@@ -185,7 +185,10 @@ class TumRgbdSource(SourceBase):
             raise ConfigError(f"depth_factor must be > 0 (units per metre), got {depth_factor}")
         if not self.path.is_dir():
             raise InputError(f"{self.path}: a TUM RGB-D input is a folder")
-        missing = [n for n in ("rgb.txt", "depth.txt") if not (self.path / n).is_file()]
+        # rgb.txt alone is a colour-only sequence (monocular input): it has no RGB-D frames.
+        self.has_depth = (self.path / "depth.txt").is_file()
+        needed = ("rgb.txt", "depth.txt") if not (self.path / "rgb.txt").is_file() else ("rgb.txt",)
+        missing = [n for n in needed if not (self.path / n).is_file()]
         if missing:
             present = [
                 n for n in ("rgb.txt", "depth.txt", "associations.txt") if (self.path / n).is_file()
@@ -201,7 +204,11 @@ class TumRgbdSource(SourceBase):
         self.strict = bool(strict)
         self.stats = ReadStats()
         self.rgb_list = read_image_list(self.path / "rgb.txt")
-        self.depth_list = read_image_list(self.path / "depth.txt")
+        self.depth_list = (
+            read_image_list(self.path / "depth.txt")
+            if self.has_depth
+            else ImageList(self.path / "depth.txt", np.zeros(0, np.int64), (), ())
+        )
         resolved = resolve_camera(self.path, camera, fx, fy, cx, cy)
         self.raw_camera = resolved.camera
         self.camera_source = resolved.source
@@ -358,10 +365,11 @@ class TumRgbdSource(SourceBase):
         problems: list[str] = []
         gt = self.groundtruth()
         accel = self._accelerometer
-        streams = [
-            _stream("rgb", "image", self.rgb_list.stamps_ns, "rgb.txt"),
-            _stream("depth", "depth", self.depth_list.stamps_ns, "depth.txt"),
-        ]
+        streams = [_stream("rgb", "image", self.rgb_list.stamps_ns, "rgb.txt")]
+        if self.has_depth:
+            streams.append(_stream("depth", "depth", self.depth_list.stamps_ns, "depth.txt"))
+        else:
+            problems.append("no depth.txt: colour only (monocular pipelines only)")
         if gt is not None:
             streams.append(_stream("groundtruth", "pose", gt.stamps_ns, "groundtruth.txt"))
         if accel is not None:
@@ -387,7 +395,7 @@ class TumRgbdSource(SourceBase):
                 "median": float(np.median(dt)) * 1e-6,
                 "max": float(dt.max()) * 1e-6,
             }
-        else:
+        elif self.has_depth:
             problems.append(
                 f"no colour/depth pairs within max_dt {self.max_dt:g} s; the stamps may be "
                 "offset (see dt_offset)"
@@ -436,6 +444,12 @@ class TumRgbdSource(SourceBase):
             raise ConfigError(
                 f"unknown frame kind(s) {', '.join(unknown)}",
                 hint=f"kinds: {', '.join(_ALL_KINDS)}",
+            )
+        if "rgbd" in wanted and not self.has_depth:
+            raise InputError(
+                f"{self.path}: has rgb.txt but no depth.txt: colour only, no RGB-D frames",
+                hint="RGB-D pipelines need depth; 'slamcli run visual' runs colour-only input "
+                "monocular",
             )
         absent = sorted(wanted - set(FRAME_KINDS))
         if absent:

@@ -261,7 +261,7 @@ class VisualSlam:
         Raises:
             ConfigError: ``mode=rgbd`` for an input without depth.
         """
-        has_depth = any(s.kind == "depth" for s in getattr(info, "streams", []))
+        has_depth = any(s.kind == "depth" and s.count > 0 for s in getattr(info, "streams", []))
         mode = self.config.mode
         if mode == "rgbd" and not has_depth:
             raise ConfigError(
