@@ -103,3 +103,24 @@ def wrong_camera_copy(folder: Path, out: Path) -> Path:
     wrong = replace(cam, width=2 * cam.width, height=2 * cam.height)
     save_camera_file(out / "camera.yaml", wrong, depth_factor=cam_file.depth_factor)
     return out
+
+
+def blanked_copy(folder: Path, out: Path, first: int, last: int) -> Path:
+    """A copy of a TUM folder whose frames ``first``..``last - 1`` are flat grey with no depth
+    (the camera blinded for a while), the others linked to the originals."""
+    import cv2
+
+    out.mkdir(parents=True)
+    for name in ("rgb.txt", "depth.txt", "groundtruth.txt", "camera.yaml"):
+        shutil.copy(folder / name, out / name)
+    for lst, sub in (("rgb.txt", "rgb"), ("depth.txt", "depth")):
+        (out / sub).mkdir()
+        rows = [ln.split() for ln in (folder / lst).read_text().splitlines() if ln[:1] not in "#"]
+        for i, (_stamp, name) in enumerate(r for r in rows if r):
+            if first <= i < last:
+                like = cv2.imread(str(folder / name), cv2.IMREAD_UNCHANGED)
+                blank = np.zeros_like(like) if sub == "depth" else np.full_like(like, 128)
+                cv2.imwrite(str(out / name), blank)
+            else:
+                (out / name).symlink_to(folder / name)
+    return out
