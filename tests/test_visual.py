@@ -339,3 +339,26 @@ def test_bad_input_is_a_one_line_error(
     assert "hint:" in res.stderr
     # All or nothing: a failed run leaves no folder behind.
     assert not (tmp_path / "run").exists()
+
+
+@pytest.mark.parametrize(
+    ("flavor", "extra"),
+    [("ros2", []), ("foxglove", ["--compress-images", "jpeg"])],
+    ids=["ros2-raw", "foxglove-jpeg"],
+)
+def test_mcap_logs_run_rgbd(flavor: str, extra: list[str], tmp_path: Path) -> None:
+    log = tmp_path / "room.mcap"
+    res = runner.invoke(app, ["convert", str(ROOM), str(log), "--flavor", flavor, *extra])
+    assert res.exit_code == 0, res.output
+    outcome = _run(log, tmp_path / "run")
+    info = _run_json(outcome)
+    # The log's depth topic makes it an RGB-D run, as the folder it came from (0.0026 m).
+    assert info["metrics"]["mode"] == "rgbd" and info["metrics"]["alignment"] == "se3"
+    assert info["counts"]["frames_tracked"] == 30
+    assert _ate(outcome) < 0.006
+
+
+def test_log_without_images_is_one_line(tmp_path: Path) -> None:
+    log = shared_path("mcap", "nav2_turtlebot.mcap")
+    res = runner.invoke(app, ["run", "visual", str(log), "--out", str(tmp_path / "o")])
+    _assert_one_line_error(res, 1, "rgb")

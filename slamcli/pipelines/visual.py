@@ -261,7 +261,12 @@ class VisualSlam:
         Raises:
             ConfigError: ``mode=rgbd`` for an input without depth.
         """
-        has_depth = any(s.kind == "depth" and s.count > 0 for s in getattr(info, "streams", []))
+        streams = getattr(info, "streams", [])
+        details = getattr(info, "details", {}) or {}
+        # A depth stream (TUM) or a depth topic paired with the colour one (MCAP).
+        has_depth = any(s.kind == "depth" and s.count > 0 for s in streams) or bool(
+            details.get("depth_topic") and getattr(info, "frames", 0) > 0
+        )
         mode = self.config.mode
         if mode == "rgbd" and not has_depth:
             raise ConfigError(
