@@ -246,6 +246,7 @@ class VisualSlam:
         self._init_ref: _Frame | None = None
         self._textureless = 0
         self._consistent: list[tuple[set[int], int]] = []
+        self._init_info: dict[str, Any] | None = None
 
     # -- the pipeline -------------------------------------------------------------------------
 
@@ -452,12 +453,14 @@ class VisualSlam:
         if len(pairs) < 20:
             self._counts["motion_model_failed"] += 1
             return None
+        # A seed for the local-map search, which refines again: two rounds suffice.
         est = self._refine(
             predicted,
             cur.keypoints[pairs[:, 1]],
             world[pairs[:, 0]],
             self.map.sigma[cur.features.octaves[pairs[:, 1]]],
             cur.depth[pairs[:, 1]],
+            rounds=2,
         )
         if est is None or est.num_inliers < 10:
             self._counts["motion_model_failed"] += 1
@@ -468,15 +471,22 @@ class VisualSlam:
         return est.cam_from_world
 
     def _refine(
-        self, pose: F64, kp: F64, world: F64, sigma: F64, depth: F64
+        self, pose: F64, kp: F64, world: F64, sigma: F64, depth: F64, rounds: int = 4
     ) -> PoseEstimate | None:
         """Robust pose refinement: with the keypoints' depths for RGB-D (a stereo-like
-        residual), reprojection only for monocular."""
+        residual), reprojection only for monocular; ``rounds`` of outlier rejection."""
         cam = self._camera_checked()
         if self.mono:
-            return refine_pose(cam, pose, kp, world, sigma_px=sigma)
+            return refine_pose(cam, pose, kp, world, sigma_px=sigma, rounds=min(rounds, 3))
         return refine_pose_depth(
-            cam, pose, kp, world, depth, sigma_px=sigma, baseline_m=self.config.depth_baseline_m
+            cam,
+            pose,
+            kp,
+            world,
+            depth,
+            sigma_px=sigma,
+            baseline_m=self.config.depth_baseline_m,
+            rounds=rounds,
         )
 
     def _track_reference(self, cur: _Frame) -> F64 | None:
@@ -1002,6 +1012,7 @@ class VisualSlam:
             if other.parent == cand.id and not other.culled:
                 other.parent = parent
         cand.culled = True
+        self.map.version += 1
         cand.parent = parent
         cand.from_parent = cand.cam_from_world @ inverse(self.map.world_pose(parent))
         for kp in np.flatnonzero(cand.point_ids >= 0).tolist():
@@ -1666,6 +1677,7 @@ class VisualSlam:
             point_colors=self.map.color[alive].copy(),
             metrics={
                 "mode": "mono" if self.mono else "rgbd",
+                "initialisation": self._init_info,
                 "ms_per_frame": stages,
                 "maps": self._maps,
                 "merges": self._merges,
@@ -1800,6 +1812,7 @@ class VisualSlam:
                 for kp in np.flatnonzero(k.point_ids >= 0).tolist():
                     self.map.forget(k, kp)
                 k.culled = True
+                self.map.version += 1
                 k.parent = None
 
     def _triangulate(self, kf: Keyframe) -> None:

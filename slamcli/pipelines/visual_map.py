@@ -97,6 +97,10 @@ class SparseMap:
         self.map_id = np.zeros(n, np.int64)
         self.obs: list[dict[int, int]] = []
         self.n = 0
+        # Bumped by every change of observations: covisibility is cached per keyframe until
+        # then (frames between keyframes ask for it many times).
+        self.version = 0
+        self._covisible: dict[int, tuple[int, list[tuple[int, int]]]] = {}
 
     # -- points ------------------------------------------------------------------------------
 
@@ -125,6 +129,7 @@ class SparseMap:
 
     def add_points(self, kf: Keyframe, kp_idx: I64, world: F64) -> I64:
         """New points at ``world`` (K, 3), observed by ``kf`` at its keypoints ``kp_idx``."""
+        self.version += 1
         k = len(kp_idx)
         ids = np.arange(self.n, self.n + k, dtype=np.int64)
         self._grow(self.n + k)
@@ -145,6 +150,7 @@ class SparseMap:
 
     def observe(self, kf: Keyframe, kp: int, pid: int) -> None:
         """Record that keypoint ``kp`` of ``kf`` is point ``pid``."""
+        self.version += 1
         old = int(kf.point_ids[kp])
         if old == pid:
             return
@@ -158,6 +164,7 @@ class SparseMap:
 
     def forget(self, kf: Keyframe, kp: int) -> None:
         """Remove the observation of keypoint ``kp`` of ``kf``."""
+        self.version += 1
         pid = int(kf.point_ids[kp])
         if pid < 0:
             return
@@ -167,6 +174,7 @@ class SparseMap:
             self.alive[pid] = False
 
     def cull_point(self, pid: int) -> None:
+        self.version += 1
         for kf_id, kp in list(self.obs[pid].items()):
             self.keyframes[kf_id].point_ids[kp] = -1
         self.obs[pid].clear()
@@ -174,6 +182,7 @@ class SparseMap:
 
     def replace(self, pid: int, by: int) -> None:
         """Fuse point ``pid`` into ``by``: its observations move over, it dies."""
+        self.version += 1
         if pid == by or not self.alive[pid]:
             return
         for kf_id, kp in list(self.obs[pid].items()):
@@ -253,14 +262,19 @@ class SparseMap:
     def covisible(self, kf: Keyframe, min_weight: int = 1) -> list[tuple[int, int]]:
         """(keyframe id, shared points) of the keyframes sharing points with ``kf``, most
         shared first (ties: lower id)."""
+        cached = self._covisible.get(kf.id)
+        if cached is None or cached[0] != self.version:
+            cached = (self.version, self._count_covisible(kf))
+            self._covisible[kf.id] = cached
+        return [kw for kw in cached[1] if kw[1] >= min_weight]
+
+    def _count_covisible(self, kf: Keyframe) -> list[tuple[int, int]]:
         obs = self.obs
         counts: Counter[int] = Counter(
             chain.from_iterable(obs[p] for p in kf.point_ids[kf.point_ids >= 0].tolist())
         )
         counts.pop(kf.id, None)
-        out = [
-            (k, w) for k, w in counts.items() if w >= min_weight and not self.keyframes[k].culled
-        ]
+        out = [(k, w) for k, w in counts.items() if not self.keyframes[k].culled]
         out.sort(key=lambda kw: (-kw[1], kw[0]))
         return out
 
