@@ -40,6 +40,7 @@ from slamcli.errors import ConfigError, PipelineError
 from slamcli.geometry import compose, inverse, rotation_angle
 from slamcli.geometry.camera import undistort_image
 from slamcli.pipelines.rgbd_odometry import rgbd_odometry_multi_scale
+from slamcli.pipelines.timing import StageTimer
 from slamcli.types import PinholeCamera, RgbdFrame, SlamResult, Trajectory, TriangleMesh
 from slamcli.vision.features import lift
 from slamcli.vision.gates import pnp_opencv
@@ -869,24 +870,11 @@ class DenseSlam:
             o3d.t.geometry.Image(np.ascontiguousarray(small, dtype=np.float32)),
         )
 
-    def _timed(self, stage: str) -> _Timer:
-        return _Timer(self._ms, stage)
+    def _timed(self, stage: str) -> StageTimer:
+        return StageTimer(self._ms, stage)
 
 
 _DEPTH_STEPS_PER_M = 5000.0
-
-
-class _Timer:
-    """Adds the milliseconds spent in a ``with`` block to ``totals[stage]``."""
-
-    def __init__(self, totals: dict[str, float], stage: str) -> None:
-        self._totals, self._stage = totals, stage
-
-    def __enter__(self) -> None:
-        self._start = time.perf_counter()
-
-    def __exit__(self, *exc: object) -> None:
-        self._totals[self._stage] += (time.perf_counter() - self._start) * 1e3
 
 
 class _Volume:

@@ -55,6 +55,7 @@ from numpy.typing import NDArray
 from slamcli.config import setting
 from slamcli.errors import ConfigError, InputError, PipelineError
 from slamcli.geometry import inverse
+from slamcli.pipelines.timing import StageTimer
 from slamcli.pipelines.visual_map import Keyframe, SparseMap
 from slamcli.types import ImageFrame, PinholeCamera, RgbdFrame, SlamResult, Trajectory
 from slamcli.vision.features import Features, OrbSettings, depth_at, extract_orb
@@ -1268,44 +1269,8 @@ class VisualSlam:
         rigid[:3, :3] = r.T
         rigid[:3, 3] = -r.T @ t
         pose = rigid @ cand.cam_from_world
-        group = [cand] + [self.map.keyframes[k] for k, _ in self.map.covisible(cand)[:10]]
-        ids = np.unique(np.concatenate([g.point_ids[g.point_ids >= 0] for g in group]))
-        ids = ids[self.map.alive[ids] & (self.map.map_id[ids] == cand.map_id)]
-        # Distances in kf's own units: the in-range test must not reject them by scale.
-        p = self.map.pos[ids] @ pose[:3, :3].T + pose[:3, 3]
-        front = ids[p[:, 2] > 0]
-        fake = _Frame(
-            kf.frame, kf.stamp_ns, "", _features_of(kf), kf.keypoints, kf.depth, kf.colors
-        )
-        octv = np.clip(
-            self.map.predict_octave(
-                front, np.linalg.norm(self.map.pos[front] - inverse(pose)[:3, 3], axis=1)
-            ),
-            0,
-            self.map.levels - 1,
-        )
-        found = self._project_match(
-            fake, pose, self.map.pos[front], self.map.desc[front], octv, 7.5, ratio=0.9
-        )
-        record["inliers"] = len(found)
-        if len(found) < self.config.loop_min_inliers:
-            record["reason"] = f"{len(found)} points matched by the guided search"
-            return None
-        ref = refine_pose(
-            cam,
-            pose,
-            kf.keypoints[found[:, 1]],
-            self.map.pos[front[found[:, 0]]],
-            sigma_px=self.map.sigma[kf.octaves[found[:, 1]]],
-        )
-        record["inliers"] = 0 if ref is None else ref.num_inliers
-        if ref is None or ref.num_inliers < self.config.loop_min_inliers:
-            record["reason"] = (
-                f"{record['inliers']} inliers after refinement "
-                f"(need {self.config.loop_min_inliers})"
-            )
-            return None
-        return ref.cam_from_world, float(sc)
+        found = self._guided_loop_check(kf, cand, pose, record, scaled=False)
+        return None if found is None else (found, float(sc))
 
     def _sim3_inliers(
         self,
@@ -1461,25 +1426,40 @@ class VisualSlam:
         if est is None:
             record["reason"] = "PnP found fewer than 20 inliers"
             return None
+        return self._guided_loop_check(kf, cand, est.cam_from_world, record, scaled=True)
+
+    def _guided_loop_check(
+        self, kf: Keyframe, cand: Keyframe, pose: F64, record: dict[str, Any], *, scaled: bool
+    ) -> F64 | None:
+        """Search the points of ``cand`` and its neighbours in ``kf`` from ``pose`` (kf's
+        ``cam_from_world`` in cand's map) and refine it; the refined pose when at least
+        ``loop_min_inliers`` points agree, else None (the reason in ``record``). Without
+        ``scaled`` (a monocular map of another scale) the points' distance ranges are not used."""
+        cam = self._camera_checked()
         group = [cand] + [self.map.keyframes[k] for k, _ in self.map.covisible(cand)[:10]]
         ids = np.unique(np.concatenate([g.point_ids[g.point_ids >= 0] for g in group]))
         ids = ids[self.map.alive[ids] & (self.map.map_id[ids] == cand.map_id)]
-        visible, dist = self._in_view(est.cam_from_world, ids)
-        ids, dist = ids[visible], dist[visible]
+        if scaled:
+            visible, dist = self._in_view(pose, ids)
+            ids, dist = ids[visible], dist[visible]
+        else:
+            z = self.map.pos[ids] @ pose[2, :3] + pose[2, 3]
+            ids = ids[z > 0]
+            dist = np.linalg.norm(self.map.pos[ids] - inverse(pose)[:3, 3], axis=1)
+        octv = self.map.predict_octave(ids, dist)
         fake = _Frame(
             kf.frame, kf.stamp_ns, "", _features_of(kf), kf.keypoints, kf.depth, kf.colors
         )
-        octv = self.map.predict_octave(ids, dist)
         pairs = self._project_match(
-            fake, est.cam_from_world, self.map.pos[ids], self.map.desc[ids], octv, 7.5, ratio=0.9
+            fake, pose, self.map.pos[ids], self.map.desc[ids], octv, 7.5, ratio=0.9
         )
+        record["inliers"] = len(pairs)
         if len(pairs) < self.config.loop_min_inliers:
-            record["inliers"] = len(pairs)
             record["reason"] = f"{len(pairs)} points matched by the guided search"
             return None
         ref = refine_pose(
             cam,
-            est.cam_from_world,
+            pose,
             kf.keypoints[pairs[:, 1]],
             self.map.pos[ids[pairs[:, 0]]],
             sigma_px=self.map.sigma[kf.octaves[pairs[:, 1]]],
@@ -1717,8 +1697,8 @@ class VisualSlam:
         assert self._camera is not None
         return self._camera
 
-    def _timed(self, stage: str) -> _Timer:
-        return _Timer(self._ms, stage)
+    def _timed(self, stage: str) -> StageTimer:
+        return StageTimer(self._ms, stage)
 
     def _initialise_mono(self, cur: _Frame) -> str:
         """Two-view initialisation: the first frame with enough features is the reference; a
@@ -1878,16 +1858,3 @@ def _features_of(kf: Keyframe) -> Features:
         kf.descriptors,
         np.zeros(len(kf.keypoints), np.float32),
     )
-
-
-class _Timer:
-    """Adds the milliseconds spent in a ``with`` block to ``totals[stage]``."""
-
-    def __init__(self, totals: dict[str, float], stage: str) -> None:
-        self._totals, self._stage = totals, stage
-
-    def __enter__(self) -> None:
-        self._start = time.perf_counter()
-
-    def __exit__(self, *exc: object) -> None:
-        self._totals[self._stage] += (time.perf_counter() - self._start) * 1e3
