@@ -1327,17 +1327,18 @@ class VisualSlam:
             pose[:3, :3] = m[:3, :3] / s_k
             pose[:3, 3] = m[:3, 3]
             sim[k.id], sc[k.id] = pose, s_k
+        group = {cand.id} | {k for k, _ in self.map.covisible(cand)[:10]}
+        extra = [(kf.id, cand.id, "loop")] + [
+            (k.id, g, "loop")
+            for k in connected
+            for g in sorted(group)
+            if g in index
+            and any(g in self.map.obs[p] for p in k.point_ids[k.point_ids >= 0][:50].tolist())
+        ]
         edges: list[Edge] = []
-        seen: set[tuple[int, int]] = set()
-
-        def add(a: int, b: int, use_new: bool, kind: str) -> None:
-            if a not in index or b not in index or a == b:
-                return
-            key = (min(a, b), max(a, b))
-            if key in seen:
-                return
-            seen.add(key)
-            if use_new:
+        for a, b, kind in self._graph_links(kfs, extra):
+            # Loops are measured by the corrected similarities, the rest by the old poses.
+            if kind == "loop":
                 wa, wb = _sim_matrix(sim[a], sc[a]), _sim_matrix(sim[b], sc[b])
             else:
                 wa, wb = old[a], old[b]
@@ -1347,22 +1348,6 @@ class VisualSlam:
             r[:3, :3] = rel[:3, :3] / s_ab
             r[:3, 3] = rel[:3, 3]
             edges.append(Edge(index[a], index[b], r, scale=s_ab, kind=kind))
-
-        group = {cand.id} | {k for k, _ in self.map.covisible(cand)[:10]}
-        for k in kfs:
-            if k.parent is not None:
-                add(k.parent, k.id, False, "tree")
-            for nb, _w in self.map.covisible(k, min_weight=100):
-                add(k.id, nb, False, "covisibility")
-            for other in k.loop_edges:
-                add(k.id, other, True, "loop")
-        add(kf.id, cand.id, True, "loop")
-        for k in connected:
-            for g in group:
-                if g in index and any(
-                    g in self.map.obs[p] for p in k.point_ids[k.point_ids >= 0][:50].tolist()
-                ):
-                    add(k.id, g, True, "loop")
         kf.loop_edges.add(cand.id)
         cand.loop_edges.add(kf.id)
         poses = np.stack([sim[k.id] for k in kfs])
@@ -1540,31 +1525,19 @@ class VisualSlam:
         kfs = self.map.live(map_id)
         index = {k.id: i for i, k in enumerate(kfs)}
         init = {k.id: k.cam_from_world.copy() for k in kfs}
-        edges: list[Edge] = []
-        seen: set[tuple[int, int]] = set()
-
-        def add(a: int, b: int, poses: dict[int, F64], kind: str) -> None:
-            if a not in index or b not in index or a == b:
-                return
-            key = (min(a, b), max(a, b))
-            if key in seen:
-                return
-            seen.add(key)
-            rel = poses[a] @ inverse(poses[b])  # a_from_b = cam_a_from_world @ world_from_cam_b
-            edges.append(Edge(index[a], index[b], rel, kind=kind))
-
         old_or_new = {k: before.get(k, init[k]) for k in init}
-        for k in kfs:
-            if k.parent is not None:
-                add(k.parent, k.id, old_or_new, "tree")
-            for nb, _w in self.map.covisible(k, min_weight=100):
-                add(k.id, nb, old_or_new, "covisibility")
-            for other in k.loop_edges:
-                add(k.id, other, init, "loop")
-        for k in connected:
-            for nb, _w in self.map.covisible(k):
-                if nb in {g.id for g in group}:
-                    add(k.id, nb, init, "loop")
+        group_ids = {g.id for g in group}
+        extra = [
+            (k.id, nb, "loop")
+            for k in connected
+            for nb, _w in self.map.covisible(k)
+            if nb in group_ids
+        ]
+        edges: list[Edge] = []
+        for a, b, kind in self._graph_links(kfs, extra):
+            # Loops are measured by the corrected poses, the rest by the poses before it.
+            poses = init if kind == "loop" else old_or_new
+            edges.append(Edge(index[a], index[b], poses[a] @ inverse(poses[b]), kind=kind))
         first = kfs[0].id
         world_from = np.stack([inverse(init[k.id]) for k in kfs])
         result = optimize_se3(world_from, edges, fixed=(index[first],))
@@ -1674,22 +1647,39 @@ class VisualSlam:
 
         index = {k.id: i for i, k in enumerate(kfs)}
         edges: list[Edge] = []
-        seen: set[tuple[int, int]] = set()
-        for k in kfs:
-            links = [(k.parent, "tree")] if k.parent is not None else []
-            links += [(nb, "covisibility") for nb, _w in self.map.covisible(k, min_weight=100)]
-            links += [(other, "loop") for other in sorted(k.loop_edges)]
-            for other, kind in links:
-                if other not in index or other == k.id:
-                    continue
-                key = (min(other, k.id), max(other, k.id))
-                if key in seen:
-                    continue
-                seen.add(key)
-                a, b = self.map.keyframes[key[0]], self.map.keyframes[key[1]]
-                rel = a.cam_from_world @ inverse(b.cam_from_world)
-                edges.append(Edge(index[a.id], index[b.id], rel, kind=kind))
+        for a, b, kind in self._graph_links(kfs):
+            rel = self.map.keyframes[a].cam_from_world @ inverse(
+                self.map.keyframes[b].cam_from_world
+            )
+            edges.append(Edge(index[a], index[b], rel, kind=kind))
         return edges
+
+    def _graph_links(
+        self, kfs: list[Keyframe], extra: list[tuple[int, int, str]] | None = None
+    ) -> list[tuple[int, int, str]]:
+        """The essential graph's edges among ``kfs``, as (lower id, higher id, kind): the
+        spanning tree, strong covisibility (100 shared points), loops, then ``extra``; each
+        pair once, in a fixed order."""
+        ids = {k.id for k in kfs}
+        links: list[tuple[int, int, str]] = []
+        seen: set[tuple[int, int]] = set()
+
+        def add(a: int, b: int, kind: str) -> None:
+            key = (min(a, b), max(a, b))
+            if a in ids and b in ids and a != b and key not in seen:
+                seen.add(key)
+                links.append((*key, kind))
+
+        for k in kfs:
+            if k.parent is not None:
+                add(k.parent, k.id, "tree")
+            for nb, _w in self.map.covisible(k, min_weight=100):
+                add(k.id, nb, "covisibility")
+            for other in sorted(k.loop_edges):
+                add(k.id, other, "loop")
+        for a, b, kind in extra or []:
+            add(a, b, kind)
+        return links
 
     # -- helpers -----------------------------------------------------------------------------
 
