@@ -12,9 +12,8 @@ from slamcli.geometry import compose, inverse, make_pose, so3_exp
 from slamcli.geometry.camera import project
 from slamcli.types import PinholeCamera
 from slamcli.vision.features import lift
-from slamcli.vision.gates import pnp_opencv
 from slamcli.vision.matching import match_ratio
-from slamcli.vision.pnp import pose_change, within
+from slamcli.vision.pnp import pnp_opencv, pose_change, within
 
 CAMERA = PinholeCamera(640, 480, 525.0, 520.0, 319.5, 239.5)
 

@@ -43,9 +43,8 @@ from slamcli.pipelines.rgbd_odometry import rgbd_odometry_multi_scale
 from slamcli.pipelines.timing import StageTimer
 from slamcli.types import PinholeCamera, RgbdFrame, SlamResult, Trajectory, TriangleMesh
 from slamcli.vision.features import lift
-from slamcli.vision.gates import pnp_opencv
 from slamcli.vision.matching import match_ratio
-from slamcli.vision.pnp import pose_change, within
+from slamcli.vision.pnp import pnp_opencv, pose_change, within
 
 log = logging.getLogger(__name__)
 
