@@ -10,7 +10,6 @@ from __future__ import annotations
 import os
 import re
 import struct
-import subprocess
 import sys
 import zlib
 from pathlib import Path
@@ -18,6 +17,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from measured import run_measured
 
 from slamcli.errors import FormatError
 from slamcli.formats.images import MAX_IMAGE_PIXELS, decode_image, image_size
@@ -48,21 +48,11 @@ def _png(image: np.ndarray) -> bytes:
 def _run(args: list[str], cwd: Path) -> tuple[int, str, float, float]:
     """(exit code, stdout and stderr, CPU seconds, peak RSS in MB) of ``slamcli ARGS``.
 
-    The time is the child's user + system CPU time, so a loaded CI machine does not count.
+    The time is the child's user + system CPU time, so a loaded CI machine does not count;
+    the RSS is the command's own (see ``measured.py``).
     """
     env = {**os.environ, "COLUMNS": "200", "NO_COLOR": "1"}
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "slamcli", *args],
-        cwd=cwd,
-        env=env,
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-    )
-    assert proc.stdout is not None
-    err = proc.stdout.read().decode()
-    _, status, usage = os.wait4(proc.pid, 0)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    return proc.returncode, err, usage.ru_utime + usage.ru_stime, usage.ru_maxrss / 1024.0
+    return run_measured([sys.executable, "-m", "slamcli", *args], cwd=cwd, env=env)
 
 
 def _room_with(tmp_path: Path, replace: dict[str, bytes]) -> Path:

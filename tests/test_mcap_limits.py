@@ -10,7 +10,6 @@ from __future__ import annotations
 import io
 import os
 import random
-import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -22,6 +21,7 @@ from mcap.data_stream import RecordBuilder
 from mcap.reader import make_reader
 from mcap.records import Chunk, ChunkIndex, DataEnd, Footer
 from mcap.writer import CompressionType, Writer
+from measured import run_measured
 from typer.testing import CliRunner
 
 from slamcli.cli.app import app
@@ -162,21 +162,10 @@ def measured(*args: str) -> tuple[int, str, float, float]:
     """Run the CLI: (exit code, stdout + stderr, CPU seconds, peak RSS in MB).
 
     The time is the child's user + system CPU time: what the input cost, whatever else the
-    machine (a CI runner with two test workers) is doing at the time.
+    machine (a CI runner with two test workers) is doing at the time. The RSS is the
+    command's own (see ``measured.py``), not the test worker's.
     """
-    proc = subprocess.Popen(
-        [SLAMCLI, *args],
-        stdout=subprocess.PIPE,
-        stderr=subprocess.STDOUT,
-        env={**os.environ, "COLUMNS": "250", "NO_COLOR": "1"},
-    )
-    assert proc.stdout is not None
-    output = proc.stdout.read().decode(errors="replace")
-    _, status, usage = os.wait4(proc.pid, 0)
-    proc.returncode = os.waitstatus_to_exitcode(status)
-    seconds = usage.ru_utime + usage.ru_stime
-    # ru_maxrss is in kB on Linux.
-    return proc.returncode, output, seconds, usage.ru_maxrss / 1024
+    return run_measured([SLAMCLI, *args], env={**os.environ, "COLUMNS": "250", "NO_COLOR": "1"})
 
 
 def check_refused(args: list[str], path: Path, at: int, codes: tuple[int, ...] = (3,)) -> str:
