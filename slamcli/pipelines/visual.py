@@ -197,7 +197,6 @@ class _FrameRecord:
     stamp_ns: int
     kf: int
     cam_from_kf: F64
-    map_id: int
     kp: F64
     sigma: F64
     depth: F64
@@ -706,7 +705,6 @@ class VisualSlam:
                 cur.stamp_ns,
                 self._ref_kf.id,
                 cur.cam_from_world @ inverse(self._ref_kf.cam_from_world),
-                self._map_id,
                 cur.keypoints[rows],
                 self.map.sigma[cur.features.octaves[rows]],
                 cur.depth[rows],
@@ -827,9 +825,7 @@ class VisualSlam:
         if ids.size == 0:
             return 0
         octv = self.map.predict_octave(ids, dist)
-        fake = _Frame(
-            kf.frame, kf.stamp_ns, "", _features_of(kf), kf.keypoints, kf.depth, kf.colors
-        )
+        fake = _frame_of(kf)
         pairs = self._project_match(
             fake,
             kf.cam_from_world,
@@ -1031,7 +1027,8 @@ class VisualSlam:
         if np.count_nonzero(has) < 100:
             self._counts["init_too_little_depth"] += 1
             return "initialising"
-        cur.cam_from_world = np.eye(4) if not self._maps else self._guess_new_map_pose()
+        # A new map has a frame of its own until a merge relates it to the others.
+        cur.cam_from_world = np.eye(4)
         kf = self._new_keyframe(cur)
         self._points_from_depth(kf)
         self._maps.append({"id": self._map_id, "first_frame": cur.index, "merged_into": None})
@@ -1044,9 +1041,6 @@ class VisualSlam:
         self._set_last(cur)
         self._counts["keyframes_made"] += 1
         return "new_map" if len(self._maps) > 1 else "tracked"
-
-    def _guess_new_map_pose(self) -> F64:
-        return np.eye(4)
 
     def _start_new_map(self) -> None:
         self._map_id += 1
@@ -1432,9 +1426,7 @@ class VisualSlam:
             ids = ids[z > 0]
             dist = np.linalg.norm(self.map.pos[ids] - inverse(pose)[:3, 3], axis=1)
         octv = self.map.predict_octave(ids, dist)
-        fake = _Frame(
-            kf.frame, kf.stamp_ns, "", _features_of(kf), kf.keypoints, kf.depth, kf.colors
-        )
+        fake = _frame_of(kf)
         pairs = self._project_match(
             fake, pose, self.map.pos[ids], self.map.desc[ids], octv, 7.5, ratio=0.9
         )
@@ -1470,6 +1462,7 @@ class VisualSlam:
         if keep == new_id:  # the candidate's map is the newer one: move it instead
             w = np.asarray(np.linalg.inv(w), dtype=np.float64)
         s = float(np.cbrt(np.linalg.det(w[:3, :3])))
+        moved_kfs = {k.id for k in self.map.keyframes if k.map_id == gone}
         for k in self.map.keyframes:
             if k.map_id == gone:
                 moved = w @ inverse(k.cam_from_world)
@@ -1479,10 +1472,10 @@ class VisualSlam:
         ids = np.flatnonzero(self.map.map_id[: self.map.n] == gone)
         self.map.pos[ids] = self.map.pos[ids] @ w[:3, :3].T + w[:3, 3]
         self.map.map_id[ids] = keep
-        for rec in self._records:
-            if rec.map_id == gone:
-                rec.map_id = keep
-                if s != 1.0:
+        if s != 1.0:
+            # Frames hang from their keyframe in its units, which the similarity rescales.
+            for rec in self._records:
+                if rec.kf in moved_kfs:
                     rec.cam_from_kf[:3, 3] *= s
         for m in self._maps:
             if m["id"] == gone:
@@ -1557,7 +1550,6 @@ class VisualSlam:
                 self.map.ref_kf[pid] = ref
             t = inverse(self.map.keyframes[ref].cam_from_world) @ init[ref]
             self.map.pos[pid] = t[:3, :3] @ self.map.pos[pid] + t[:3, 3]
-        self._graph_edges = [(kfs[e.a].id, kfs[e.b].id, e.kind) for e in edges]
         self._counts["essential_graph_optimisations"] += 1
         if self.config.global_ba:
             self._global_ba(map_id)
@@ -1841,10 +1833,12 @@ def _sim_matrix(pose: F64, scale: float) -> F64:
     return m
 
 
-def _features_of(kf: Keyframe) -> Features:
-    return Features(
+def _frame_of(kf: Keyframe) -> _Frame:
+    """A keyframe as a frame to search points in (its keypoints are already undistorted)."""
+    features = Features(
         kf.keypoints.astype(np.float32),
         kf.octaves,
         kf.descriptors,
         np.zeros(len(kf.keypoints), np.float32),
     )
+    return _Frame(kf.frame, kf.stamp_ns, "", features, kf.keypoints, kf.depth, kf.colors)

@@ -209,8 +209,10 @@ class SparseMap:
             return
         table = np.array(pairs, dtype=np.int64)
         row, kf_ids, kps = table[:, 0], table[:, 1], table[:, 2]
-        centers = np.stack([self.keyframes[k].center for k in range(len(self.keyframes))])
-        d = self.pos[ids[row]] - centers[kf_ids]
+        # Centres of the observing keyframes only: a long run has thousands.
+        seen_kfs, kf_row = np.unique(kf_ids, return_inverse=True)
+        centers = np.stack([self.keyframes[k].center for k in seen_kfs.tolist()])[kf_row]
+        d = self.pos[ids[row]] - centers
         d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
         normal = np.zeros((ids.size, 3))
         np.add.at(normal, row, d)
@@ -229,7 +231,7 @@ class SparseMap:
                 for k, kp in zip(kf_ids[pick].tolist(), kps[pick].tolist(), strict=True)
             ]
         )
-        dist = np.linalg.norm(self.pos[ids[row[pick]]] - centers[kf_ids[pick]], axis=1)
+        dist = np.linalg.norm(self.pos[ids[row[pick]]] - centers[pick], axis=1)
         self.dmax[ids[row[pick]]] = dist * self.sigma[octave.astype(np.int64)]
         if not descriptors:
             return
