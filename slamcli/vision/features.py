@@ -136,29 +136,31 @@ def _spread(
 ) -> NDArray[np.int64]:
     """Indices of the corners kept: per level its quota, round-robin over grid cells."""
     quota = level_quota(settings.n_features, settings.levels, settings.scale)
+    in_range = (octave >= 0) & (octave < settings.levels)
+    idx = np.flatnonzero(in_range)
+    lvl = octave[idx]
+    x, y, neg = xy[idx, 0], xy[idx, 1], -response[idx]
+    # Cells are cell_px wide in each level's own pixels.
+    size = settings.cell_px * settings.scale ** lvl.astype(np.float64)
+    cell = np.floor(y / size).astype(np.int64) * 100_000 + np.floor(x / size).astype(np.int64)
+    # Rank within each (level, cell) by response (ties by position), then, per level, rank 0
+    # of every cell before rank 1 of any.
+    order = np.lexsort((x, y, neg, cell, lvl))
+    group = lvl[order] * 10**12 + cell[order]
+    starts = np.r_[0, np.flatnonzero(np.diff(group)) + 1]
+    rank = np.empty(order.size, dtype=np.int64)
+    rank[order] = np.arange(order.size) - np.repeat(starts, np.diff(np.r_[starts, order.size]))
+    ranked = np.lexsort((x, y, neg, rank, lvl))
+    bounds = np.searchsorted(lvl[ranked], np.arange(settings.levels + 1))
     chosen: list[NDArray[np.int64]] = []
     leftover: list[NDArray[np.int64]] = []
     spare = 0
     for level in range(settings.levels):
-        idx = np.flatnonzero(octave == level)
+        pick = ranked[bounds[level] : bounds[level + 1]]
         want = int(quota[level]) + spare
-        if idx.size == 0:
+        if pick.size == 0:
             spare = want
             continue
-        # Cells are cell_px wide in the level's own pixels.
-        size = settings.cell_px * settings.scale**level
-        cx = np.floor(xy[idx, 0] / size).astype(np.int64)
-        cy = np.floor(xy[idx, 1] / size).astype(np.int64)
-        cell = cy * 100_000 + cx
-        # Rank within each cell by response (ties by position), then take rank 0 of every
-        # cell before rank 1 of any.
-        order = np.lexsort((xy[idx, 0], xy[idx, 1], -response[idx], cell))
-        sorted_cells = cell[order]
-        starts = np.r_[0, np.flatnonzero(np.diff(sorted_cells)) + 1]
-        rank = np.arange(order.size) - np.repeat(starts, np.diff(np.r_[starts, order.size]))
-        pick = order[
-            np.lexsort((xy[idx[order], 0], xy[idx[order], 1], -response[idx[order]], rank))
-        ]
         chosen.append(idx[pick[:want]])
         leftover.append(idx[pick[want:]])
         spare = max(0, want - pick.size)

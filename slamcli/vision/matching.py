@@ -7,6 +7,8 @@ pairs into its inputs and is deterministic (ties go to the lower index).
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -21,9 +23,16 @@ TH_LOW = 50
 TH_HIGH = 100
 
 
-def hamming(a: U8, b: U8) -> NDArray[np.int64]:
-    """Row-wise Hamming distances of two (N, 32) uint8 descriptor arrays (broadcasting)."""
-    return _POPCOUNT[np.bitwise_xor(a, b)].sum(axis=-1, dtype=np.int64)
+def hamming(a: U8, b: U8, dtype: type[np.integer[Any]] = np.int64) -> NDArray[Any]:
+    """Hamming distances between broadcastable (..., 32) uint8 descriptor arrays -> (...).
+
+    The XOR of the bytes is counted eight bytes at a time (``np.bitwise_count`` of uint64
+    words), or byte by byte through a table when the descriptor length is not a multiple of 8.
+    """
+    x = np.bitwise_xor(a, b)  # a new C-contiguous array: its last axis can be re-viewed
+    if x.shape[-1] % 8 == 0 and x.dtype == np.uint8:
+        return np.bitwise_count(x.view(np.uint64)).sum(axis=-1, dtype=dtype)
+    return _POPCOUNT[x].sum(axis=-1, dtype=dtype)
 
 
 def match_ratio(desc_a: U8, desc_b: U8, ratio: float, max_distance: int = 256) -> I64:
@@ -56,6 +65,43 @@ def _one_to_one(a: I64, b: I64, dist: NDArray[np.float64]) -> I64:
     first = np.r_[True, a[1:] != a[:-1]]
     out = np.stack([a[first], b[first]], axis=1)
     return out[np.argsort(out[:, 1], kind="stable")]
+
+
+def _near(projected: F64, radius_px: F64, keypoints: F64) -> tuple[I64, I64]:
+    """Candidate (point, keypoint) index pairs: every keypoint in the grid cells that a point's
+    search circle touches (a superset of those within its radius, each pair once).
+
+    Keypoints are bucketed in square cells (one sort, then cell -> keypoints as offsets), and
+    each point visits the ``(2k + 1)^2`` cells around its own, ``k = ceil(radius / cell)``; the
+    cell is at least a quarter of the largest radius, so no point visits more than 81."""
+    radius = np.asarray(radius_px, dtype=np.float64)
+    cell = max(float(np.min(radius)), float(np.max(radius)) / 4.0, 1.0)
+    x0 = float(np.min(keypoints[:, 0]))
+    y0 = float(np.min(keypoints[:, 1]))
+    kx = np.floor((keypoints[:, 0] - x0) / cell).astype(np.int64)
+    ky = np.floor((keypoints[:, 1] - y0) / cell).astype(np.int64)
+    nx, ny = int(kx.max()) + 1, int(ky.max()) + 1
+    cell_of = ky * nx + kx
+    order = np.argsort(cell_of, kind="stable")
+    starts = np.searchsorted(cell_of[order], np.arange(nx * ny + 1))
+    # Each point's window of cells.
+    k = np.ceil(radius / cell).astype(np.int64)
+    side = 2 * k + 1
+    n_win = side * side
+    pt = np.repeat(np.arange(len(projected)), n_win)
+    local = np.arange(int(n_win.sum())) - np.repeat(np.cumsum(n_win) - n_win, n_win)
+    px = np.floor((projected[:, 0] - x0) / cell).astype(np.int64)
+    py = np.floor((projected[:, 1] - y0) / cell).astype(np.int64)
+    cx = px[pt] + local % side[pt] - k[pt]
+    cy = py[pt] + local // side[pt] - k[pt]
+    inside = (cx >= 0) & (cx < nx) & (cy >= 0) & (cy < ny)
+    pt, cid = pt[inside], cy[inside] * nx + cx[inside]
+    lo = starts[cid]
+    counts = starts[cid + 1] - lo
+    pt, lo, counts = pt[counts > 0], lo[counts > 0], counts[counts > 0]
+    total = int(counts.sum())
+    offs = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
+    return np.repeat(pt, counts), order[np.repeat(lo, counts) + offs]
 
 
 def match_by_projection(
@@ -91,32 +137,9 @@ def match_by_projection(
     p, n = len(projected), len(keypoints)
     if p == 0 or n == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    cell = max(float(np.max(radius_px)), 1.0)
-    # A grid of keypoints by cell, so each point only looks at the cells its radius touches.
-    kx = np.floor(keypoints[:, 0] / cell).astype(np.int64)
-    ky = np.floor(keypoints[:, 1] / cell).astype(np.int64)
-    key = ky * 1_000_003 + kx
-    order = np.argsort(key, kind="stable")
-    skey = key[order]
-    px = np.floor(projected[:, 0] / cell).astype(np.int64)
-    py = np.floor(projected[:, 1] / cell).astype(np.int64)
-    cand_p: list[I64] = []
-    cand_k: list[I64] = []
-    for dy in (-1, 0, 1):
-        for dx in (-1, 0, 1):
-            q = (py + dy) * 1_000_003 + (px + dx)
-            lo = np.searchsorted(skey, q, side="left")
-            hi = np.searchsorted(skey, q, side="right")
-            counts = hi - lo
-            if not counts.any():
-                continue
-            pts = np.repeat(np.arange(p), counts)
-            offs = np.arange(int(counts.sum())) - np.repeat(np.cumsum(counts) - counts, counts)
-            cand_p.append(pts)
-            cand_k.append(order[np.repeat(lo, counts) + offs])
-    if not cand_p:
+    cp, ck = _near(projected, radius_px, keypoints)
+    if cp.size == 0:
         return np.zeros((0, 2), dtype=np.int64)
-    cp, ck = np.concatenate(cand_p), np.concatenate(cand_k)
     d2 = np.sum((keypoints[ck] - projected[cp]) ** 2, axis=1)
     ok = d2 <= radius_px[cp] ** 2
     if kp_octaves is not None and predicted_octaves is not None:
@@ -125,8 +148,8 @@ def match_by_projection(
     if cp.size == 0:
         return np.zeros((0, 2), dtype=np.int64)
     dist = hamming(point_desc[cp], kp_desc[ck])
-    # Best and second best per point.
-    order = np.lexsort((ck, dist, cp))
+    # Best and second best per point: ordered by point, distance, keypoint (one unique key).
+    order = np.argsort((cp * 257 + dist) * n + ck)
     cp, ck, dist = cp[order], ck[order], dist[order]
     first = np.r_[True, cp[1:] != cp[:-1]]
     best = np.flatnonzero(first)

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 
 from slamcli.atomic import atomic_path
 from slamcli.errors import FormatError, InputError
+from slamcli.vision.matching import hamming as _hamming
 
 log = logging.getLogger(__name__)
 
@@ -67,8 +68,6 @@ nodes), low enough that a damaged file cannot make the loader allocate gigabytes
 
 TRAIN_HINT = "make one with 'slamcli vocab train IMAGES... --out FILE'"
 
-_POPCOUNT = np.array([bin(i).count("1") for i in range(256)], dtype=np.uint8)
-"""Set bits of every byte value: Hamming distance = sum of _POPCOUNT[a ^ b] over the bytes."""
 
 _CHUNK = 65536
 """Descriptors per block in the distance computations, bounding the temporary arrays."""
@@ -95,7 +94,7 @@ class BowVector:
 
 def hamming(a: U8, b: U8) -> NDArray[np.int32]:
     """Hamming distances between broadcastable (..., 32) uint8 descriptor arrays -> (...) int32."""
-    return _POPCOUNT[np.bitwise_xor(a, b)].sum(axis=-1, dtype=np.int32)
+    return _hamming(a, b, np.int32)
 
 
 def check_descriptors(descriptors: Any, what: str = "descriptors") -> U8:
