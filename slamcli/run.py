@@ -5,14 +5,16 @@ from __future__ import annotations
 import itertools
 import logging
 from collections.abc import Mapping
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
 from slamcli.errors import InputError, PipelineError
-from slamcli.formats.base import SourceInfo
+from slamcli.formats.base import ReadAhead, SourceInfo
 from slamcli.rundir import RunDir, Timings, hash_input
 from slamcli.types import LandmarkMap, ProgressFn, SlamResult, Trajectory, TriangleMesh
+from slamcli.worker import Background
 
 log = logging.getLogger(__name__)
 
@@ -111,12 +113,21 @@ def _run_into(
         # the progress bar but never limits the run.
         total = info.frames if max_frames is None else min(info.frames, max_frames)
         frames = 0
-        with timings.stage("track"):
-            for frame in itertools.islice(source.frames(kinds), max_frames):
+        # A pipeline that asks for it gets its frames decoded ahead on a reader thread.
+        ahead = int(getattr(pipe, "read_ahead", 0))
+        items = itertools.islice(source.frames(kinds), max_frames)
+        with (
+            timings.stage("track"),
+            ReadAhead(items, ahead) if ahead else nullcontext(items) as reader,
+        ):
+            for frame in reader:
                 pipe.process(frame)
                 frames += 1
                 if progress:
                     progress(frames, max(total, frames))
+        # The input's hash (for run.json) is read beside the pipeline's last steps when the
+        # pipeline works on two cores.
+        digest = Background(hash_input, input_path) if ahead else None
         with timings.stage("finish"):
             result = pipe.finish()
         # After the frames: a source may give ground truth at the times of the frames it read.
@@ -171,7 +182,7 @@ def _run_into(
     )
     run.write_run_json(
         command=command or f"run {pipeline}",
-        inputs=[hash_input(input_path)],
+        inputs=[digest.result() if digest is not None else hash_input(input_path)],
         config={pipeline: cfg, "source": dict(source_options or {})},
         seeds=pipe.seeds(),
         timings=timings,

@@ -362,3 +362,52 @@ def test_log_without_images_is_one_line(tmp_path: Path) -> None:
     log = shared_path("mcap", "nav2_turtlebot.mcap")
     res = runner.invoke(app, ["run", "visual", str(log), "--out", str(tmp_path / "o")])
     _assert_one_line_error(res, 1, "rgb")
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (Linux /proc)."""
+    out = []
+    for stat in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat.parent.name))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="reads /proc")
+def test_ctrl_c_stops_a_two_core_run_cleanly(tmp_path: Path) -> None:
+    """Interrupted while its side process adjusts and its reader thread decodes: exit 130, one
+    line, no folder, and the side process gone with it."""
+    import signal
+    import time
+
+    folder = shared_path("tum", "rgbd_dataset_freiburg1_rpy_excerpt")
+    out = tmp_path / "run"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "slamcli", "run", "visual", str(folder), "--out", str(out)],
+        cwd=ROOT,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    deadline = time.monotonic() + 60
+    workers: list[int] = []
+    while not workers and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+        workers = _children(proc.pid)
+    assert workers, "the run never started its side process"
+    time.sleep(1.0)  # well into the frames, an adjustment likely running
+    proc.send_signal(signal.SIGINT)
+    output, _ = proc.communicate(timeout=60)
+    assert proc.returncode == 130, output
+    assert "Traceback" not in output
+    assert not out.exists()
+    gone = time.monotonic() + 10
+    while any(Path(f"/proc/{w}").exists() for w in workers) and time.monotonic() < gone:
+        time.sleep(0.05)
+    alive = [w for w in workers if Path(f"/proc/{w}/stat").exists()]
+    # A reaped or zombie-free exit: nothing of the run's is left running.
+    assert not [w for w in alive if "Z" not in Path(f"/proc/{w}/stat").read_text().split()[2]]

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from collections.abc import Collection, Iterator
+import queue
+import threading
+from collections.abc import Collection, Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any, Protocol, TypeVar
+from typing import Any, Generic, Protocol, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -94,6 +96,7 @@ class Source(Protocol):
 
 _C = TypeVar("_C", bound="Closing")
 _S = TypeVar("_S", bound="SourceBase")
+_T = TypeVar("_T")
 
 
 class Closing:
@@ -133,3 +136,64 @@ class SourceBase(Closing):
     def landmark_truth(self) -> LandmarkMap | None:
         """The surveyed landmark positions; None for logs without landmarks."""
         return None
+
+
+class ReadAhead(Generic[_T]):
+    """Iterate ``items`` on a reader thread, up to ``depth`` items ahead of the consumer.
+
+    Image decoding (OpenCV, PNG/JPEG) lets go of the interpreter lock, so a pipeline whose
+    frames cost more than their decoding gets the decoding for free on a second core. Items
+    arrive in order and an exception raised while reading arrives where it happened, so
+    results are as without it. Use as a context manager: leaving the block (an error, Ctrl-C)
+    stops the reader before the source is closed. Everything the reader does for an item
+    (``source.stats`` included) is done by the time the consumer receives it.
+    """
+
+    _END = object()
+
+    def __init__(self, items: Iterable[_T], depth: int = 2) -> None:
+        self._items = items
+        self._queue: queue.Queue[tuple[str, Any]] = queue.Queue(maxsize=max(1, depth))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._read, name="read-ahead", daemon=True)
+        self._thread.start()
+
+    def _put(self, item: tuple[str, Any]) -> bool:
+        while not self._stop.is_set():
+            try:
+                self._queue.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _read(self) -> None:
+        try:
+            for item in self._items:
+                if not self._put(("item", item)):
+                    return
+        except BaseException as exc:  # handed to the consumer, raised there
+            self._put(("error", exc))
+            return
+        self._put(("end", self._END))
+
+    def __iter__(self) -> Iterator[_T]:
+        while True:
+            kind, value = self._queue.get()
+            if kind == "item":
+                yield value
+            elif kind == "error":
+                raise value
+            else:
+                return
+
+    def close(self) -> None:
+        """Stop the reader (it finishes the item in hand) and wait for it."""
+        self._stop.set()
+        self._thread.join(timeout=10)
+
+    def __enter__(self) -> ReadAhead[_T]:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -68,6 +68,7 @@ from slamcli.vision.pnp import (
     refine_pose_depth,
 )
 from slamcli.vision.two_view import triangulate_checked, two_view_geometry
+from slamcli.worker import Pending, SideProcess
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +76,55 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 _CHI2_2D = 5.991
+
+
+def _refine_pose(
+    camera: PinholeCamera,
+    mono: bool,
+    baseline_m: float,
+    pose: F64,
+    kp: F64,
+    world: F64,
+    sigma: F64,
+    depth: F64,
+    rounds: int = 4,
+) -> PoseEstimate | None:
+    """The visual pipeline's robust pose refinement (see ``VisualSlam._refine``)."""
+    if mono:
+        return refine_pose(camera, pose, kp, world, sigma_px=sigma, rounds=min(rounds, 3))
+    return refine_pose_depth(
+        camera, pose, kp, world, depth, sigma_px=sigma, baseline_m=baseline_m, rounds=rounds
+    )
+
+
+def refine_poses(
+    camera: PinholeCamera,
+    mono: bool,
+    baseline_m: float,
+    jobs: list[tuple[F64, F64, F64, F64, F64]],
+) -> list[F64 | None]:
+    """Final re-estimation of frames, each ``(pose, keypoints, points, sigma, depth)``: the
+    refined pose, or None where the refinement keeps fewer than ten inliers."""
+    out: list[F64 | None] = []
+    for pose, kp, world, sigma, depth in jobs:
+        est = _refine_pose(camera, mono, baseline_m, pose, kp, world, sigma, depth)
+        out.append(est.cam_from_world if est is not None and est.num_inliers >= 10 else None)
+    return out
+
+
+@dataclass
+class _BaJob:
+    """A bundle adjustment's input arrays (``args``, ``kwargs`` of ``bundle_adjust``) and
+    what is needed to take its result back into the map."""
+
+    kfs: list[Keyframe]
+    fixed: NDArray[np.bool_]
+    pids: I64
+    of: list[int]
+    op: list[int]
+    okp: list[int]
+    args: tuple[Any, ...]
+    kwargs: dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -158,8 +208,8 @@ class VisualConfig:
     )
     threads: int = setting(
         2,
-        help="1 extracts features on the tracking thread; 2 extracts the next frame's "
-        "features on a second core (same results either way)",
+        help="1 does everything on one core; 2 decodes and extracts features of the next "
+        "frames, and runs local bundle adjustment, beside tracking (same results either way)",
         choices=(1, 2),
     )
     seed: int = setting(0, help="seeds every RANSAC", min=0, max=2**31 - 1)
@@ -217,6 +267,8 @@ class VisualSlam:
         cfg = self.config
         self.mono = cfg.mode == "mono"
         self.evaluation = "sim3" if self.mono else "se3"
+        # With two threads, frames are decoded ahead on a reader thread (see run_pipeline).
+        self.read_ahead = 2 if cfg.threads == 2 else 0
         self._orb = OrbSettings(
             n_features=cfg.max_features,
             levels=cfg.levels,
@@ -227,6 +279,12 @@ class VisualSlam:
         self._camera: PinholeCamera | None = None
         self._raw_camera: PinholeCamera | None = None
         self._pool: ThreadPoolExecutor | None = None
+        # An RGB-D local bundle adjustment started at a keyframe runs on a second process with
+        # threads=2, and is taken into the map at the next keyframe (or before anything that
+        # needs the map settled: a loop, a merge, a new map, the end): a point fixed by the
+        # frame sequence, never by timing, so threads=1 (in place) gives the same results.
+        self._side = SideProcess(parallel=cfg.threads == 2)
+        self._ba_pending: tuple[_BaJob, Pending[Any]] | None = None
         self._pending: list[tuple[RgbdFrame | ImageFrame, Future[Features]]] = []
         self._frames = 0
         self._last: _Frame | None = None
@@ -284,6 +342,7 @@ class VisualSlam:
         if self.config.threads == 2:
             if self._pool is None:
                 self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="orb")
+                self._side.start()
             self._pending.append((frame, self._pool.submit(self._extract, frame)))
             if len(self._pending) > 1:
                 ready, fut = self._pending.pop(0)
@@ -299,17 +358,21 @@ class VisualSlam:
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
-        if self._frames == 0:
-            raise PipelineError("the visual pipeline received no frames")
-        start = time.perf_counter()
-        main = self._main_map()
-        if main is None:
-            self._no_map_error()
-        if self.config.global_ba:
-            with self._timed("global_ba"):
-                self._global_ba(main)
-        with self._timed("final_poses"):
-            trajectory = self._trajectory(main)
+        self._settle_ba()
+        try:
+            if self._frames == 0:
+                raise PipelineError("the visual pipeline received no frames")
+            start = time.perf_counter()
+            main = self._main_map()
+            if main is None:
+                self._no_map_error()
+            if self.config.global_ba:
+                with self._timed("global_ba"):
+                    self._global_ba(main)
+            with self._timed("final_poses"):
+                trajectory = self._trajectory(main)
+        finally:
+            self._side.close()
         self._ms["total"] += (time.perf_counter() - start) * 1e3
         return self._result(main, trajectory)
 
@@ -475,18 +538,16 @@ class VisualSlam:
     ) -> PoseEstimate | None:
         """Robust pose refinement: with the keypoints' depths for RGB-D (a stereo-like
         residual), reprojection only for monocular; ``rounds`` of outlier rejection."""
-        cam = self._camera_checked()
-        if self.mono:
-            return refine_pose(cam, pose, kp, world, sigma_px=sigma, rounds=min(rounds, 3))
-        return refine_pose_depth(
-            cam,
+        return _refine_pose(
+            self._camera_checked(),
+            self.mono,
+            self.config.depth_baseline_m,
             pose,
             kp,
             world,
+            sigma,
             depth,
-            sigma_px=sigma,
-            baseline_m=self.config.depth_baseline_m,
-            rounds=rounds,
+            rounds,
         )
 
     def _track_reference(self, cur: _Frame) -> F64 | None:
@@ -779,6 +840,9 @@ class VisualSlam:
             self._points_from_depth(kf)
         else:
             self._triangulate(kf)
+        # The previous keyframe's adjustment has had this keyframe's new points to finish in.
+        if self._settle_ba(within="mapping"):
+            self._repose(kf)
         self._fuse_neighbours(kf)
         self._cull_points(kf)
         self._local_ba(kf)
@@ -908,69 +972,152 @@ class VisualSlam:
         else:
             fixed = [False] * len(window) + [True] * len(fixed_ids)
             window = window + [self.map.keyframes[k] for k in fixed_ids]
-        self._bundle(window, np.array(fixed), pids, self.config.ba_iterations)
         self._counts["local_ba"] += 1
+        if self.mono:
+            # A map without depth is adjusted at once: the next keyframe triangulates its new
+            # points from these poses, and scale errors left in them would compound.
+            self._bundle(window, np.array(fixed), pids, self.config.ba_iterations)
+            return
+        job = self._ba_job(window, np.array(fixed), pids, self.config.ba_iterations)
+        if job is not None:
+            from slamcli.vision.bundle_adjustment import bundle_adjust
+
+            self._ba_pending = (job, self._side.submit(bundle_adjust, *job.args, **job.kwargs))
 
     def _bundle(
         self, kfs: list[Keyframe], fixed: NDArray[np.bool_], pids: I64, iterations: int
     ) -> None:
-        """Bundle-adjust keyframes ``kfs`` (``fixed`` held) and points ``pids``; drop the
+        """Bundle-adjust keyframes ``kfs`` (``fixed`` held) and points ``pids`` now; drop the
         observations that end up outliers."""
         from slamcli.vision.bundle_adjustment import bundle_adjust
 
-        index = {k.id: i for i, k in enumerate(kfs)}
+        job = self._ba_job(kfs, fixed, pids, iterations)
+        if job is not None:
+            self._ba_apply(job, bundle_adjust(*job.args, **job.kwargs))
 
+    def _ba_job(
+        self, kfs: list[Keyframe], fixed: NDArray[np.bool_], pids: I64, iterations: int
+    ) -> _BaJob | None:
+        """The arrays of a bundle adjustment (a copy: the map may move on while it runs)."""
+        # Every observation of the points by the problem's keyframes, read off the keyframes'
+        # keypoint -> point tables, ordered by point (in the order of ``pids``), then frame.
+        rank = np.full(self.map.n, -1, dtype=np.int64)
+        rank[pids] = np.arange(pids.size)
+        parts = []
+        for i, k in enumerate(kfs):
+            kps = np.flatnonzero(k.point_ids >= 0)
+            kps = kps[rank[k.point_ids[kps]] >= 0]
+            parts.append(np.stack([rank[k.point_ids[kps]], np.full(kps.size, i), kps]))
+        if not parts:
+            return None
+        table = np.concatenate(parts, axis=1)
+        table = table[:, np.lexsort((table[1], table[0]))]
+        prow, frame_of, kp_of = table[0], table[1], table[2]
+        uv = np.empty((kp_of.size, 2))
+        sig = np.empty(kp_of.size)
+        dep = np.empty(kp_of.size)
+        for i, k in enumerate(kfs):
+            rows = np.flatnonzero(frame_of == i)
+            kps = kp_of[rows]
+            uv[rows] = k.keypoints[kps]
+            sig[rows] = self.map.sigma[k.octaves[kps].astype(np.int64)]
+            dep[rows] = k.depth[kps]
         # A point seen once in the problem, without depth, cannot be placed by it (with depth
         # it can, and must follow its keyframe).
-        def placed(p: int) -> bool:
-            seen = [(k, i) for k, i in self.map.obs[p].items() if k in index]
-            if len(seen) >= 2:
-                return True
-            return (
-                bool(seen)
-                and not self.mono
-                and bool(np.isfinite(self.map.keyframes[seen[0][0]].depth[seen[0][1]]))
-            )
-
-        pids = np.array([p for p in pids.tolist() if placed(p)], dtype=np.int64)
-        prow = {int(p): i for i, p in enumerate(pids.tolist())}
-        of, op, uv, sig, okp, dep = [], [], [], [], [], []
-        for pid in pids.tolist():
-            for k, kp in self.map.obs[pid].items():
-                i = index.get(k)
-                if i is None:
-                    continue
-                kfo = kfs[i]
-                of.append(i)
-                op.append(prow[pid])
-                uv.append(kfo.keypoints[kp])
-                sig.append(self.map.sigma[int(kfo.octaves[kp])])
-                okp.append(kp)
-                dep.append(kfo.depth[kp])
-        if not of:
-            return
-        result = bundle_adjust(
+        views = np.bincount(prow, minlength=pids.size)
+        placed = views >= 2
+        if not self.mono:
+            single = views[prow] == 1
+            placed[prow[single & np.isfinite(dep)]] = True
+        keep = placed[prow]
+        if not keep.any():
+            return None
+        prow, frame_of, kp_of = prow[keep], frame_of[keep], kp_of[keep]
+        uv, sig, dep = uv[keep], sig[keep], dep[keep]
+        kept_rows = np.flatnonzero(placed)
+        new_row = np.cumsum(placed) - 1
+        pids = pids[kept_rows]
+        op = new_row[prow]
+        of, okp = frame_of.tolist(), kp_of.tolist()
+        args = (
             self._camera_checked(),
             np.stack([k.cam_from_world for k in kfs]),
             self.map.pos[pids].copy(),
-            np.asarray(of, np.int64),
-            np.asarray(op, np.int64),
-            np.asarray(uv, np.float64),
-            np.asarray(sig, np.float64),
-            fixed_frames=fixed,
-            max_iterations=iterations,
-            obs_depth=None if self.mono else np.asarray(dep, np.float64),
-            baseline_m=self.config.depth_baseline_m,
+            frame_of,
+            op,
+            uv,
+            sig,
         )
-        for i, k in enumerate(kfs):
-            if not fixed[i]:
+        kwargs = {
+            "fixed_frames": fixed.copy(),
+            "max_iterations": iterations,
+            "obs_depth": None if self.mono else dep,
+            "baseline_m": self.config.depth_baseline_m,
+        }
+        return _BaJob(list(kfs), fixed.copy(), pids, of, op.tolist(), okp, args, kwargs)
+
+    def _ba_apply(self, job: _BaJob, result: Any) -> None:
+        """Move the job's free keyframes and its points where the adjustment put them, and
+        drop its outlier observations. The map may have changed since the job was made (a
+        keyframe culled, a point culled or fused away): what no longer exists is skipped."""
+        for i, k in enumerate(job.kfs):
+            if not job.fixed[i]:
                 k.cam_from_world = result.cam_from_world[i]
-        self.map.pos[pids] = result.points
+        alive = self.map.alive[job.pids]
+        self.map.pos[job.pids[alive]] = result.points[alive]
         bad = np.flatnonzero(~result.inlier)
+        removed = 0
         for b in bad.tolist():
-            self.map.forget(kfs[of[b]], okp[b])
-        self._counts["ba_outliers_removed"] += int(bad.size)
-        self.map.update_geometry(pids[self.map.alive[pids]], descriptors=False)
+            kf, kp = job.kfs[job.of[b]], job.okp[b]
+            if kf.point_ids[kp] == job.pids[job.op[b]]:
+                self.map.forget(kf, kp)
+                removed += 1
+        self._counts["ba_outliers_removed"] += removed
+        self.map.update_geometry(job.pids[self.map.alive[job.pids]], descriptors=False)
+
+    def _settle_ba(self, within: str | None = None) -> bool:
+        """Take the local bundle adjustment that runs apart, if any, into the map; returns
+        whether there was one. The wait is timed as ``ba_wait``, and taken out of the stage
+        ``within`` that is timing the caller."""
+        if self._ba_pending is None:
+            return False
+        job, pending = self._ba_pending
+        self._ba_pending = None
+        start = time.perf_counter()
+        result = pending.result()
+        waited = (time.perf_counter() - start) * 1e3
+        self._ms["ba_wait"] += waited
+        if within is not None:
+            self._ms[within] -= waited
+        self._ba_apply(job, result)
+        return True
+
+    def _repose(self, kf: Keyframe) -> None:
+        """Refine a new keyframe's pose against the older points it sees, where the adjustment
+        just moved them (it was tracked against where they were); the points made from its own
+        depth move with it."""
+        pids = kf.point_ids
+        rows = np.flatnonzero(pids >= 0)
+        rows = rows[self.map.alive[pids[rows]]]
+        own = rows[self.map.first_kf[pids[rows]] == kf.id]
+        older = rows[self.map.first_kf[pids[rows]] != kf.id]
+        if older.size < 10:
+            return
+        est = self._refine(
+            kf.cam_from_world,
+            kf.keypoints[older],
+            self.map.pos[pids[older]],
+            self.map.sigma[kf.octaves[older].astype(np.int64)],
+            kf.depth[older],
+            rounds=2,
+        )
+        if est is None or est.num_inliers < 10:
+            return
+        # world -> old camera -> new world: the own points keep their place in the camera.
+        move = inverse(est.cam_from_world) @ kf.cam_from_world
+        ids = pids[own]
+        self.map.pos[ids] = self.map.pos[ids] @ move[:3, :3].T + move[:3, 3]
+        kf.cam_from_world = est.cam_from_world
 
     def _cull_keyframes(self, kf: Keyframe) -> None:
         """A covisible keyframe whose points are 90% seen by three others at the same or a
@@ -985,18 +1132,20 @@ class VisualSlam:
                 rows = rows[np.isfinite(cand.depth[rows])]
             if rows.size == 0:
                 continue
-            redundant = 0
-            for r in rows.tolist():
-                pid = int(cand.point_ids[r])
-                level = int(cand.octaves[r])
-                seen = 0
-                for k2, kp2 in self.map.obs[pid].items():
-                    if k2 != cand.id and self.map.keyframes[k2].octaves[kp2] <= level + 1:
-                        seen += 1
-                        if seen >= 3:
-                            redundant += 1
-                            break
-            if redundant > 0.9 * rows.size:
+            # How many other keyframes see each of these points at the same or a finer
+            # scale: its observers are the keyframes covisible with it.
+            level = cand.octaves[rows].astype(np.int64)
+            row_of = np.full(self.map.n, -1, dtype=np.int64)
+            row_of[cand.point_ids[rows]] = np.arange(rows.size)
+            seen = np.zeros(rows.size, dtype=np.int64)
+            for k2, _ in self.map.covisible(cand):
+                other = self.map.keyframes[k2]
+                kps = np.flatnonzero(other.point_ids >= 0)
+                r = row_of[other.point_ids[kps]]
+                kps, r = kps[r >= 0], r[r >= 0]
+                finer = other.octaves[kps] <= level[r] + 1
+                seen += np.bincount(r[finer], minlength=rows.size)
+            if np.count_nonzero(seen >= 3) > 0.9 * rows.size:
                 self._cull(cand)
 
     def _cull(self, cand: Keyframe) -> None:
@@ -1043,6 +1192,7 @@ class VisualSlam:
         return "new_map" if len(self._maps) > 1 else "tracked"
 
     def _start_new_map(self) -> None:
+        self._settle_ba()
         self._map_id += 1
         self._ref_kf = None
         self._last = None
@@ -1300,6 +1450,7 @@ class VisualSlam:
         (GTSAM), every keyframe's points follow its scale, then a global bundle adjustment."""
         from slamcli.pose_graph import Edge, optimize_sim3
 
+        self._settle_ba()
         map_id = cand.map_id
         kfs = self.map.live(map_id)
         index = {k.id: i for i, k in enumerate(kfs)}
@@ -1453,6 +1604,7 @@ class VisualSlam:
     def _merge_maps(self, kf: Keyframe, cand: Keyframe, corrected: F64, scale: float) -> None:
         """Bring the newer of the two keyframes' maps into the older one's frame (by the
         loop's rigid transform, or similarity for monocular maps) and relabel it."""
+        self._settle_ba()
         old_id, new_id = cand.map_id, kf.map_id
         keep, gone = min(old_id, new_id), max(old_id, new_id)
         # A point of kf's map, in kf's camera, times scale, is where the candidate's map
@@ -1491,6 +1643,7 @@ class VisualSlam:
         fuse the duplicated points, optimise the essential graph and adjust globally."""
         from slamcli.pose_graph import Edge, optimize_se3
 
+        self._settle_ba()
         map_id = cand.map_id
         connected = [kf] + [self.map.keyframes[k] for k, _ in self.map.covisible(kf)]
         connected = [k for k in connected if k.map_id == map_id]
@@ -1557,6 +1710,7 @@ class VisualSlam:
         self._ref_kf = kf
 
     def _global_ba(self, main: int | None) -> None:
+        self._settle_ba()
         if main is None:
             return
         kfs = self.map.live(main)
@@ -1572,7 +1726,14 @@ class VisualSlam:
     # -- results -----------------------------------------------------------------------------
 
     def _trajectory(self, main: int | None) -> Trajectory:
-        stamps, poses = [], []
+        """Every frame of the main map, placed by its keyframe and, with
+        ``final_pose_refinement``, re-estimated against the final map: with threads=2 the
+        second half of the frames on the side process (each frame on its own, so the split
+        changes nothing)."""
+        stamps: list[int] = []
+        poses: list[F64] = []
+        jobs: list[tuple[F64, F64, F64, F64, F64]] = []
+        refined: list[int] = []
         for rec in self._records:
             kf = self.map.keyframes[rec.kf]
             if kf.map_id != main:
@@ -1582,18 +1743,29 @@ class VisualSlam:
             if self.config.final_pose_refinement and len(rec.pids):
                 alive = self.map.alive[rec.pids] & (self.map.map_id[rec.pids] == main)
                 if np.count_nonzero(alive) >= 10:
-                    est = self._refine(
-                        pose,
-                        rec.kp[alive],
-                        self.map.pos[rec.pids[alive]],
-                        rec.sigma[alive],
-                        rec.depth[alive],
+                    refined.append(len(poses))
+                    jobs.append(
+                        (
+                            pose,
+                            rec.kp[alive],
+                            self.map.pos[rec.pids[alive]],
+                            rec.sigma[alive],
+                            rec.depth[alive],
+                        )
                     )
-                    if est is not None and est.num_inliers >= 10:
-                        pose = est.cam_from_world
             stamps.append(rec.stamp_ns)
-            poses.append(inverse(pose))
-        return Trajectory(np.array(stamps, np.int64), np.stack(poses).reshape(-1, 4, 4))
+            poses.append(pose)
+        if jobs:
+            settings = (self._camera_checked(), self.mono, self.config.depth_baseline_m)
+            half = len(jobs) // 2
+            later = self._side.submit(refine_poses, *settings, jobs[half:])
+            better = refine_poses(*settings, jobs[:half]) + later.result()
+            for i, new in zip(refined, better, strict=True):
+                if new is not None:
+                    poses[i] = new
+        return Trajectory(
+            np.array(stamps, np.int64), np.stack([inverse(p) for p in poses]).reshape(-1, 4, 4)
+        )
 
     def _result(self, main: int | None, trajectory: Trajectory) -> SlamResult:
         kfs = self.map.live(main)

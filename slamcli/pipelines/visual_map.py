@@ -225,22 +225,33 @@ class SparseMap:
         use = np.where(kf_ids == ref, 0, 1) * 2 + np.where(first, 0, 1)
         order = np.lexsort((use, row))
         pick = order[np.r_[True, row[order][1:] != row[order][:-1]]]
-        octave = np.array(
-            [
-                self.keyframes[k].octaves[kp]
-                for k, kp in zip(kf_ids[pick].tolist(), kps[pick].tolist(), strict=True)
-            ]
-        )
+        octave = self._gather("octaves", seen_kfs, kf_row[pick], kps[pick])
         dist = np.linalg.norm(self.pos[ids[row[pick]]] - centers[pick], axis=1)
         self.dmax[ids[row[pick]]] = dist * self.sigma[octave.astype(np.int64)]
         if not descriptors:
             return
-        for p in ids.tolist():
-            views = self.obs[p]
-            if len(views) >= 3:
-                descs = np.stack([self.keyframes[k].descriptors[i] for k, i in views.items()])
-                dd = hamming(descs[:, None, :], descs[None, :, :])
-                self.desc[p] = descs[int(np.argmin(np.median(dd, axis=1)))]
+        # Representative descriptors, all points with the same number of views at once (the
+        # rows of one point are contiguous, in the order of its views).
+        descs = self._gather("descriptors", seen_kfs, kf_row, kps)
+        views = np.bincount(row, minlength=ids.size)
+        start = np.cumsum(views) - views
+        for n in np.unique(views[views >= 3]).tolist():
+            pts = np.flatnonzero(views == n)
+            group = descs[start[pts][:, None] + np.arange(n)]  # (P, n, 32)
+            dd = hamming(group[:, :, None, :], group[:, None, :, :])  # (P, n, n)
+            best = np.argmin(np.median(dd, axis=2), axis=1)
+            self.desc[ids[pts]] = group[np.arange(pts.size), best]
+
+    def _gather(self, attr: str, kf_ids: I64, kf_row: I64, kps: I64) -> NDArray[Any]:
+        """``keyframes[kf_ids[kf_row[j]]].<attr>[kps[j]]`` for every j, one keyframe at a
+        time."""
+        first = getattr(self.keyframes[int(kf_ids[0])], attr)
+        out = np.empty((kps.size, *first.shape[1:]), dtype=first.dtype)
+        for j, k in enumerate(kf_ids.tolist()):
+            rows = np.flatnonzero(kf_row == j)
+            if rows.size:
+                out[rows] = getattr(self.keyframes[k], attr)[kps[rows]]
+        return out
 
     def predict_octave(self, pid: I64, dist: F64) -> I64:
         ratio = self.dmax[pid] / np.maximum(dist, 1e-9)

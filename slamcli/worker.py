@@ -1,0 +1,219 @@
+"""A second process for CPU-heavy pure functions, with results taken at fixed points.
+
+Python threads share one interpreter lock, and the libraries the pipelines lean on for their
+heaviest steps (pycolmap's bundle adjustment among them) hold it while they compute: a thread
+gains nothing there. :class:`SideProcess` runs such a function in one worker process instead,
+while the caller goes on. The caller asks for the result at a point of its own work fixed by
+the data (say, the next keyframe), never "when it is ready", so the output does not depend on
+timing: the function is pure and deterministic, its result is the same in either process, and
+the same point is used whether it ran there or in place.
+
+The worker is ``python -m slamcli.worker``, fed pickled calls on its stdin, one at a time. It
+is started with :mod:`subprocess`, not :mod:`multiprocessing`: it never re-imports the caller's
+``__main__`` (a script without a ``__main__`` guard stays safe), and it may be started from a
+daemonic process such as a Dask worker's task. With ``parallel=False``, or where no process can
+be started, or when the worker dies, the call runs in place instead: slower, same result.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import pickle
+import signal
+import struct
+import subprocess
+import sys
+import threading
+from collections.abc import Callable
+from typing import IO, Any, Generic, TypeVar, cast
+
+log = logging.getLogger(__name__)
+
+T = TypeVar("T")
+
+_HEADER = struct.Struct("<Q")
+_IN_PLACE = object()  # a call the worker did not answer: run it here
+
+
+def _send(stream: IO[bytes], obj: object) -> None:
+    data = pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL)
+    stream.write(_HEADER.pack(len(data)))
+    stream.write(data)
+    stream.flush()
+
+
+def _receive(stream: IO[bytes]) -> Any:
+    head = stream.read(_HEADER.size)
+    if len(head) < _HEADER.size:
+        raise EOFError("the other end closed the pipe")
+    (size,) = _HEADER.unpack(head)
+    data = stream.read(size)
+    if len(data) < size:
+        raise EOFError("the other end closed the pipe mid-message")
+    return pickle.loads(data)
+
+
+class Pending(Generic[T]):
+    """A call started by :meth:`SideProcess.submit`; :meth:`result` waits for it (or runs it
+    in place when it could not be run apart)."""
+
+    def __init__(
+        self,
+        fn: Callable[..., T],
+        args: tuple[Any, ...],
+        kwargs: dict[str, Any],
+        owner: SideProcess | None,
+    ) -> None:
+        self._fn, self._args, self._kwargs = fn, args, kwargs
+        self._owner = owner
+        self._done = False
+        self._value: Any = None
+
+    def result(self) -> T:
+        if not self._done:
+            value: Any = self._owner._collect(self) if self._owner is not None else _IN_PLACE
+            if value is _IN_PLACE:
+                value = self._fn(*self._args, **self._kwargs)
+            self._value, self._done = value, True
+        return cast(T, self._value)
+
+
+class SideProcess:
+    """One worker process (started on first use), or none with ``parallel=False``.
+
+    One call is outstanding at a time: :meth:`submit` first collects the previous call's
+    result (so neither end ever blocks writing to a full pipe)."""
+
+    def __init__(self, parallel: bool = True) -> None:
+        self._parallel = parallel
+        self._proc: subprocess.Popen[bytes] | None = None
+        self._outstanding: Pending[Any] | None = None
+
+    def start(self) -> None:
+        """Start the worker now (it takes a moment to import what it runs)."""
+        if self._parallel and self._proc is None:
+            try:
+                self._proc = subprocess.Popen(
+                    [sys.executable, "-m", "slamcli.worker"],
+                    stdin=subprocess.PIPE,
+                    stdout=subprocess.PIPE,
+                )
+            except OSError as exc:
+                log.warning("no worker process (%s); running in place", exc)
+                self._parallel = False
+
+    def submit(self, fn: Callable[..., T], *args: Any, **kwargs: Any) -> Pending[T]:
+        """Start ``fn(*args, **kwargs)`` (a module-level function; arguments and result
+        picklable)."""
+        if self._outstanding is not None:
+            self._outstanding.result()
+        self.start()
+        if self._proc is None:
+            return Pending(fn, args, kwargs, None)
+        pending: Pending[T] = Pending(fn, args, kwargs, self)
+        try:
+            assert self._proc.stdin is not None
+            _send(self._proc.stdin, (fn, args, kwargs))
+        except (OSError, pickle.PicklingError) as exc:
+            self._fail(exc)
+            return Pending(fn, args, kwargs, None)
+        self._outstanding = pending
+        return pending
+
+    def _collect(self, pending: Pending[T]) -> Any:
+        """The worker's answer to ``pending`` (``_IN_PLACE`` when it must run here)."""
+        if self._outstanding is not pending or self._proc is None:
+            return _IN_PLACE
+        self._outstanding = None
+        try:
+            assert self._proc.stdout is not None
+            ok, value = _receive(self._proc.stdout)
+        except (OSError, EOFError, pickle.UnpicklingError) as exc:
+            self._fail(exc)
+            return _IN_PLACE
+        if not ok:
+            raise value
+        return value
+
+    def _fail(self, exc: BaseException) -> None:
+        log.warning("the worker process stopped (%s); running in place", exc)
+        self._parallel = False
+        self.close()
+
+    def close(self) -> None:
+        """Stop the worker (a call in progress is abandoned)."""
+        proc, self._proc = self._proc, None
+        self._outstanding = None
+        if proc is None:
+            return
+        for stream in (proc.stdin, proc.stdout):
+            if stream is not None:
+                with contextlib.suppress(OSError):
+                    stream.close()
+        try:
+            proc.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait()
+
+    def __enter__(self) -> SideProcess:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:
+        if self._proc is not None:
+            self._proc.kill()
+
+
+class Background(Generic[T]):
+    """``fn(*args)`` on a daemon thread, for work that lets go of the interpreter lock (file
+    reads, hashing); :meth:`result` waits for it and re-raises what it raised. A daemon thread
+    never holds up the interpreter's exit (after Ctrl-C, say)."""
+
+    def __init__(self, fn: Callable[..., T], *args: Any) -> None:
+        self._outcome: tuple[bool, Any] = (False, None)
+        self._thread = threading.Thread(target=self._run, args=(fn, args), daemon=True)
+        self._thread.start()
+
+    def _run(self, fn: Callable[..., T], args: tuple[Any, ...]) -> None:
+        try:
+            self._outcome = (True, fn(*args))
+        except BaseException as exc:  # re-raised by result()
+            self._outcome = (False, exc)
+
+    def result(self) -> T:
+        self._thread.join()
+        ok, value = self._outcome
+        if not ok:
+            raise value
+        return cast(T, value)
+
+
+def _serve() -> None:
+    """The worker's loop: a call in, ``(True, result)`` or ``(False, exception)`` out, until
+    the caller closes the pipe."""
+    # Ctrl-C reaches the whole process group: the caller handles it (and closes the pipe).
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
+    # Nothing else may write to the answer pipe.
+    sys.stdout = sys.stderr
+    while True:
+        try:
+            fn, args, kwargs = _receive(stdin)
+        except EOFError:
+            return
+        try:
+            answer: tuple[bool, Any] = (True, fn(*args, **kwargs))
+        except Exception as exc:
+            answer = (False, exc)
+        try:
+            _send(stdout, answer)
+        except (BrokenPipeError, OSError):
+            return
+
+
+if __name__ == "__main__":
+    _serve()
