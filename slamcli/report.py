@@ -40,13 +40,16 @@ def plot_evaluation(
     ax0, ax1 = sorted(np.argsort(np.ptp(gt_xyz, axis=0))[-2:].tolist())
     t = (m.stamps_ns - m.stamps_ns[0]) * 1e-9 if timed else m.est_index.astype(float)
 
-    fig = Figure(figsize=(18 if mesh is not None else 12, 5), layout="constrained")
+    # Fixed margins, not the constrained layout, which draws the figure twice to measure it.
+    fig = Figure(figsize=(18 if mesh is not None else 12, 5))
     FigureCanvasAgg(fig)
+    margins = {"left": 0.07 if mesh is None else 0.05, "right": 0.985, "bottom": 0.11}
+    margins |= {"top": 0.91, "wspace": 0.2}
     if mesh is not None:
-        top, err, view = fig.subplots(1, 3, width_ratios=(1, 1.3, 1))
+        top, err, view = fig.subplots(1, 3, width_ratios=(1, 1.3, 1), gridspec_kw=margins)
         _mesh_view(view, mesh, result)
     else:
-        top, err = fig.subplots(1, 2, width_ratios=(1, 1.3))
+        top, err = fig.subplots(1, 2, width_ratios=(1, 1.3), gridspec_kw=margins)
     top.plot(gt_xyz[:, ax0], gt_xyz[:, ax1], color="0.35", lw=1.5, ls="--", label=gt_label)
     top.plot(est_xyz[:, ax0], est_xyz[:, ax1], color="tab:blue", lw=1.2, label=est_label)
     top.set_aspect("equal", adjustable="datalim")
