@@ -14,15 +14,12 @@ Each goes into its own folder under the demo's output: ``dense/``, ``plan/``, ``
 
 from __future__ import annotations
 
-import json
-import os
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from slamcli.atomic import write_json_atomic
 from slamcli.errors import InputError
 from slamcli.run import RunOutcome, run_pipeline
 from slamcli.rundir import RunDir
@@ -88,7 +85,7 @@ def run_demo(
             plan_files = write_plan(result, plan_dir, map_file)
         ekf = run_pipeline(world, "ekf", root.staged("ekf"), command="demo")
         visual = run_pipeline(rgbd, "visual", root.staged("visual"), command="demo")
-        _relocate_records(root)
+        root.relocate_records()
     return DemoOutcome(
         _final_run(root, dense),
         [root.final(p) for p in map_files],
@@ -109,33 +106,6 @@ def _final_run(root: RunDir, outcome: RunOutcome) -> RunOutcome:
         run_dir=root.final(outcome.run_dir),
         outputs=[root.final(p) for p in outcome.outputs],
     )
-
-
-def _relocate_records(root: RunDir) -> None:
-    """Point paths that JSON records under ``root`` hold (map.json's run, plan.json's map) at
-    the final folder instead of the staging one they were written in."""
-    swaps = [
-        (str(root.staging.resolve()), str(root.path.resolve())),
-        (str(root.staging), str(root.path)),
-    ]
-
-    def fix(value: Any) -> Any:
-        if isinstance(value, str):
-            for old, new in swaps:
-                if value == old or value.startswith(old + os.sep):
-                    return new + value[len(old) :]
-            return value
-        if isinstance(value, list):
-            return [fix(v) for v in value]
-        if isinstance(value, dict):
-            return {k: fix(v) for k, v in value.items()}
-        return value
-
-    for record in sorted(root.staging.rglob("*.json")):
-        data = json.loads(record.read_text(encoding="utf-8"))
-        fixed = fix(data)
-        if fixed != data:
-            write_json_atomic(record, fixed)
 
 
 def far_apart_free_places(

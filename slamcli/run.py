@@ -10,7 +10,7 @@ from dataclasses import asdict, dataclass, field, is_dataclass, replace
 from pathlib import Path
 from typing import Any
 
-from slamcli.errors import InputError, PipelineError
+from slamcli.errors import DataLossError, InputError, PipelineError
 from slamcli.formats.base import ReadAhead, SourceInfo
 from slamcli.rundir import RunDir, Timings, hash_input
 from slamcli.types import LandmarkMap, ProgressFn, SlamResult, Trajectory, TriangleMesh
@@ -46,7 +46,9 @@ def run_pipeline(
     command: str = "",
     mcap: bool = False,
     glb: bool = False,
+    build_map: bool = False,
     progress: ProgressFn | None = None,
+    map_progress: ProgressFn | None = None,
 ) -> RunOutcome:
     """Run a pipeline over a source and write its run folder.
 
@@ -56,6 +58,10 @@ def run_pipeline(
     pipeline's declared evaluation decides how it is scored against the source's ground truth:
     ``se2`` (planar ATE, landmark RMSE, NEES) or ATE and RPE after ``se3`` or ``sim3``
     alignment; ``metrics["alignment"]`` records which.
+
+    With ``build_map`` the occupancy map is built from the run as ``slamcli map build`` does
+    with its defaults (``map.yaml``, ``map.pgm``, ``map.png``, ``map.json``), inside the same
+    folder before it is committed; a pipeline whose runs have no map refuses it before the run.
 
     The folder is all or nothing (:class:`~slamcli.rundir.RunDir`): ``out`` is checked for
     writing before any work, and a failed or interrupted run leaves an earlier folder as it was.
@@ -72,8 +78,51 @@ def run_pipeline(
             mcap=mcap,
             glb=glb,
             progress=progress,
+            build_map=build_map,
         )
+        if build_map:
+            from slamcli.mapping.output import map_run
+
+            _, written = map_run(run.staging, force=True, progress=map_progress)
+            # Before run.json, as run.json lists them.
+            outcome.outputs[-1:-1] = written
+            run.relocate_records()
     return replace(outcome, outputs=[run.final(p) for p in outcome.outputs])
+
+
+def _check_mappable(pipeline: str, pipe: Any) -> None:
+    """Refuse ``build_map`` for a run that can have no occupancy map, before its frames."""
+    from slamcli.mapping.build import MAP_KINDS
+
+    if pipeline not in MAP_KINDS:
+        raise InputError(
+            f"--map: a {pipeline} run has no map to build (maps come from "
+            f"{', '.join(sorted(MAP_KINDS))} runs)",
+        )
+    if getattr(pipe, "mono", False):
+        raise InputError(
+            "--map: a monocular visual run has no metric scale to build a map with",
+            hint="run with depth (mode=rgbd or auto on an RGB-D input)",
+        )
+
+
+def data_loss_error(outcome: RunOutcome) -> DataLossError | None:
+    """The error a finished run reports when it skipped frames or salvaged a damaged log
+    (exit code 3), or None when nothing was lost. ``run``, ``demo`` and ``batch`` share it."""
+    skipped = outcome.counts.get("frames_skipped", 0)
+    where = outcome.input_path
+    if skipped:
+        return DataLossError(
+            f"{where}: {skipped} frame(s) skipped because they were missing or unreadable; "
+            "the results above exclude them",
+            hint=f"'slamcli info {where} --deep' names every unreadable image",
+        )
+    if outcome.data_loss:
+        return DataLossError(
+            f"{where}: the log is damaged; the run used what could be read",
+            hint="--strict stops instead; 'mcap recover' can rebuild a damaged MCAP file",
+        )
+    return None
 
 
 def _run_into(
@@ -88,6 +137,7 @@ def _run_into(
     mcap: bool,
     glb: bool,
     progress: ProgressFn | None,
+    build_map: bool = False,
 ) -> RunOutcome:
     """:func:`run_pipeline`'s work, writing into the staged ``run``."""
     from slamcli.formats import open_source
@@ -108,6 +158,8 @@ def _run_into(
             kinds = (
                 pipe.frame_kinds(info) if hasattr(pipe, "frame_kinds") else pipeline_cls.consumes
             )
+            if build_map:
+                _check_mappable(pipeline, pipe)
         evaluation = getattr(pipe, "evaluation", spec.evaluation)
         # info's count is an estimate for some formats (MCAP pairs by log time there): it sizes
         # the progress bar but never limits the run.

@@ -25,7 +25,13 @@ from importlib import metadata
 from pathlib import Path
 from typing import Any
 
-from slamcli.atomic import DIR_MODE, atomic_path, check_writable_folder, unwritable
+from slamcli.atomic import (
+    DIR_MODE,
+    atomic_path,
+    check_writable_folder,
+    unwritable,
+    write_json_atomic,
+)
 from slamcli.errors import ExportError, InputError
 
 RUN_SCHEMA_VERSION = 1
@@ -143,7 +149,7 @@ class RunDir:
                 f"{self.path}: exists and is not a folder", hint="choose another --out"
             )
         self._refuse_unsafe_target()
-        _clean_stale_siblings(self._target)
+        clean_stale_staging(self._target)
         if self.path.is_dir() and any(self.path.iterdir()) and not force:
             raise ExportError(
                 f"{self.path}: output folder is not empty",
@@ -318,6 +324,32 @@ class RunDir:
             _LIVE_STAGING.discard(self.staging)
             self._remove_created_parents()
 
+    def relocate_records(self) -> None:
+        """Point paths that JSON records in the staging folder hold (map.json's run folder,
+        plan.json's map) at the final folder instead. Call before :meth:`commit`."""
+        swaps = [
+            (str(self.staging.resolve()), str(self.path.resolve())),
+            (str(self.staging), str(self.path)),
+        ]
+
+        def fix(value: Any) -> Any:
+            if isinstance(value, str):
+                for old, new in swaps:
+                    if value == old or value.startswith(old + os.sep):
+                        return new + value[len(old) :]
+                return value
+            if isinstance(value, list):
+                return [fix(v) for v in value]
+            if isinstance(value, dict):
+                return {k: fix(v) for k, v in value.items()}
+            return value
+
+        for record in sorted(self.staging.rglob("*.json")):
+            data = json.loads(record.read_text(encoding="utf-8"))
+            fixed = fix(data)
+            if fixed != data:
+                write_json_atomic(record, fixed)
+
     def write_run_json(
         self,
         *,
@@ -418,7 +450,7 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def _clean_stale_siblings(path: Path) -> None:
+def clean_stale_staging(path: Path) -> None:
     """Remove staging and set-aside folders of ``path`` left by a killed process.
 
     A set-aside folder whose process died between the two renames of a commit is the last

@@ -254,9 +254,7 @@ def test_sigint_leaves_nothing_or_the_old_folder_or_a_complete_one(tmp_path: Pat
     shutil.rmtree(tmp_path, ignore_errors=True)
 
 
-def test_demo_records_name_final_paths_not_the_staging_folder(tmp_path: Path) -> None:
-    from slamcli.demo import _relocate_records
-
+def test_records_name_final_paths_not_the_staging_folder(tmp_path: Path) -> None:
     with RunDir(tmp_path / "demo") as root:
         staged = root.staged("plan")
         staged.mkdir()
@@ -266,7 +264,7 @@ def test_demo_records_name_final_paths_not_the_staging_folder(tmp_path: Path) ->
             "n": 1,
         }
         (staged / "plan.json").write_text(json.dumps(record))
-        _relocate_records(root)
+        root.relocate_records()
     fixed = json.loads((tmp_path / "demo" / "plan" / "plan.json").read_text())
     assert fixed["map"]["path"] == str((tmp_path / "demo").resolve() / "dense" / "map.yaml")
     assert fixed["runs"] == [str(tmp_path / "demo" / "dense"), "elsewhere"]

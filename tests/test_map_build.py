@@ -324,3 +324,26 @@ def test_depth_of_a_distorted_camera_is_lifted_along_the_true_rays() -> None:
     v, u = np.mgrid[0 : cam.height : 40, 0 : cam.width : 40]
     grid = np.column_stack([u.ravel(), v.ravel()])
     np.testing.assert_allclose(raw.reshape(-1, 2), grid, atol=1e-6)
+
+
+def test_run_with_map_is_one_folder_that_names_itself(tmp_path: Path) -> None:
+    run = tmp_path / "ekf"
+    res = runner.invoke(app, ["run", "ekf", str(LANDMARKS), "--out", str(run), "--map"])
+    assert res.exit_code == 0, res.output
+    record = json.loads((run / "run.json").read_text())
+    assert {"map.yaml", "map.pgm", "map.png", "map.json"} <= set(record["outputs"])
+    # map.json names the run's final folder, not the staging folder it was built in.
+    text = (run / "map.json").read_text()
+    assert ".staging" not in text
+    assert [p.name for p in tmp_path.iterdir()] == ["ekf"]
+
+
+def test_run_with_map_refuses_a_monocular_run_before_its_frames(tmp_path: Path) -> None:
+    out = tmp_path / "mono"
+    res = runner.invoke(
+        app,
+        ["run", "visual", str(ROOM), "--out", str(out), "--map", "--set", "mode=mono"],
+    )
+    assert res.exit_code == 1, res.output
+    assert "monocular" in res.output and "Traceback" not in res.output
+    assert not out.exists()

@@ -5,7 +5,6 @@ from __future__ import annotations
 import errno
 import functools
 from collections.abc import Callable
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import typer
@@ -13,7 +12,6 @@ import typer
 from slamcli.atomic import UNWRITABLE_HINT
 from slamcli.cli import render
 from slamcli.errors import (
-    DataLossError,
     ExportError,
     InputError,
     SlamcliError,
@@ -87,17 +85,10 @@ def os_error(exc: OSError) -> SlamcliError:
     return InputError(msg)
 
 
-def exit_if_data_lost(outcome: RunOutcome, input: Path) -> None:
+def exit_if_data_lost(outcome: RunOutcome) -> None:
     """Exit code 3 when a run finished but skipped frames or salvaged a damaged log."""
-    skipped = outcome.counts.get("frames_skipped", 0)
-    if skipped:
-        raise DataLossError(
-            f"{input}: {skipped} frame(s) skipped because they were missing or unreadable; "
-            "the results above exclude them",
-            hint=f"'slamcli info {input} --deep' names every unreadable image",
-        )
-    if outcome.data_loss:
-        raise DataLossError(
-            f"{input}: the log is damaged; the run used what could be read",
-            hint="--strict stops instead; 'mcap recover' can rebuild a damaged MCAP file",
-        )
+    from slamcli.run import data_loss_error
+
+    error = data_loss_error(outcome)
+    if error is not None:
+        raise error

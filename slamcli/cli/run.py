@@ -120,13 +120,9 @@ def _run(
             max_frames=max_frames,
             command=f"run {pipeline}",
             mcap=mcap,
+            build_map=build_map,
             progress=progress,
+            map_progress=progress,
         )
-    if build_map:
-        from slamcli.mapping import map_run
-
-        with render.progress("map") as progress:
-            _, written = map_run(outcome.run_dir, force=True, progress=progress)
-        outcome.outputs[-1:-1] = written  # before run.json, as run.json lists them
     render.run_summary(outcome)
-    exit_if_data_lost(outcome, input)
+    exit_if_data_lost(outcome)
