@@ -8,6 +8,7 @@ and never clobbers an earlier one. Formats, run folders and plans all write thro
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import tempfile
@@ -15,7 +16,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
-from slamcli.errors import ExportError
+from slamcli.errors import ExportError, InputError, SlamcliError
 
 
 def _current_umask() -> int:
@@ -110,3 +111,30 @@ def check_writable_file(path: str | Path) -> None:
     if dest.is_dir():
         raise ExportError(f"{dest}: is a folder", hint="give the output a file name")
     check_writable_folder(dest.parent)
+
+
+_WRITE_ERRNOS = {
+    errno.ENOSPC,
+    errno.EROFS,
+    errno.EFBIG,
+    *([errno.EDQUOT] if hasattr(errno, "EDQUOT") else []),
+}
+_ACCESS_ERRNOS = {errno.EACCES, errno.EPERM}
+
+
+def os_error(exc: OSError) -> SlamcliError:
+    """A one-line error for an operating-system failure no library code turned into a
+    SlamcliError: the path it names and the system's reason, with a hint where the reason
+    tells what to do (a full or read-only disk: write elsewhere; permissions: check them)."""
+    reason = exc.strerror or str(exc) or type(exc).__name__
+    msg = reason
+    if exc.filename is not None:
+        where = str(exc.filename)
+        if exc.filename2 is not None:
+            where += f" -> {exc.filename2}"
+        msg = f"{where}: {reason}"
+    if exc.errno in _WRITE_ERRNOS:
+        return ExportError(msg, hint=UNWRITABLE_HINT)
+    if exc.errno in _ACCESS_ERRNOS:
+        return InputError(msg, hint="check the permissions of that file or folder")
+    return InputError(msg)

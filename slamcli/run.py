@@ -235,7 +235,11 @@ def _run_into(
     run.write_run_json(
         command=command or f"run {pipeline}",
         inputs=[digest.result() if digest is not None else hash_input(input_path)],
-        config={pipeline: cfg, "source": dict(source_options or {})},
+        config={
+            pipeline: cfg,
+            "source": dict(source_options or {}),
+            "run": {"max_frames": max_frames, "mcap": mcap, "glb": glb, "map": build_map},
+        },
         seeds=pipe.seeds(),
         timings=timings,
         counts=counts,

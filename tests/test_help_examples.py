@@ -36,6 +36,7 @@ ORDER = [
     "run dense",
     "run visual",
     "run ekf",
+    "batch",
     "config dump",
     "info",
     "eval",

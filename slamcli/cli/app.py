@@ -43,6 +43,7 @@ def _register() -> None:
     # Command modules import only light things at import time; heavy libraries load inside
     # the command functions, so `slamcli --help` starts fast.
     from slamcli.cli import (
+        batch,
         config_cmd,
         convert,
         demo,
@@ -59,6 +60,7 @@ def _register() -> None:
     for module in (
         demo,
         run,
+        batch,
         config_cmd,
         info,
         evaluate,

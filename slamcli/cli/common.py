@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-import errno
 import functools
 from collections.abc import Callable
 from typing import TYPE_CHECKING, Any, TypeVar
 
 import typer
 
-from slamcli.atomic import UNWRITABLE_HINT
+from slamcli.atomic import os_error
 from slamcli.cli import render
 from slamcli.errors import (
-    ExportError,
-    InputError,
     SlamcliError,
     TopicNotFoundError,
 )
@@ -56,33 +53,6 @@ def boundary(fn: F) -> F:
             raise typer.Exit(130) from None
 
     return wrapper  # type: ignore[return-value]
-
-
-_WRITE_ERRNOS = {
-    errno.ENOSPC,
-    errno.EROFS,
-    errno.EFBIG,
-    *([errno.EDQUOT] if hasattr(errno, "EDQUOT") else []),
-}
-_ACCESS_ERRNOS = {errno.EACCES, errno.EPERM}
-
-
-def os_error(exc: OSError) -> SlamcliError:
-    """A one-line error for an operating-system failure no library code turned into a
-    SlamcliError: the path it names and the system's reason, with a hint where the reason
-    tells what to do (a full or read-only disk: write elsewhere; permissions: check them)."""
-    reason = exc.strerror or str(exc) or type(exc).__name__
-    msg = reason
-    if exc.filename is not None:
-        where = str(exc.filename)
-        if exc.filename2 is not None:
-            where += f" -> {exc.filename2}"
-        msg = f"{where}: {reason}"
-    if exc.errno in _WRITE_ERRNOS:
-        return ExportError(msg, hint=UNWRITABLE_HINT)
-    if exc.errno in _ACCESS_ERRNOS:
-        return InputError(msg, hint="check the permissions of that file or folder")
-    return InputError(msg)
 
 
 def exit_if_data_lost(outcome: RunOutcome) -> None:

@@ -3,14 +3,25 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from slamcli.cli import render
 from slamcli.cli.common import boundary, exit_if_data_lost
 from slamcli.cli.source_options import SourceOptions, source_options
+from slamcli.errors import InputError, SlamcliError
 from slamcli.pipelines import PIPELINES
+
+if TYPE_CHECKING:
+    from slamcli.run import RunOutcome
+
+
+class GateFailed(SlamcliError):
+    """A --fail-if gate held: the run finished, its figures failed the check (exit 3)."""
+
+    exit_code = 3
+
 
 run_app = typer.Typer(
     help="Run a SLAM pipeline over a log and write a run folder (trajectory, report, run.json).",
@@ -62,6 +73,25 @@ Sets = Annotated[
 ]
 
 
+FailIf = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--fail-if",
+        help="A gate, '<metric> <op> <number>' (e.g. 'ate.rmse > 0.03', 'frames.lost > 0'): "
+        "exit 3 when it holds (repeatable; metric names as 'slamcli batch' gates).",
+        show_default=False,
+    ),
+]
+Baseline = Annotated[
+    Path | None,
+    typer.Option(
+        "--baseline",
+        help="An earlier run folder, for gates of the form '<metric> <op> <k> * baseline'.",
+        show_default=False,
+    ),
+]
+
+
 def _command(pipeline: str) -> Any:
     def command(
         input: Annotated[
@@ -79,6 +109,8 @@ def _command(pipeline: str) -> Any:
         map_: BuildMap = False,
         config: ConfigFile = None,
         set_: Sets = None,
+        fail_if: FailIf = None,
+        baseline: Baseline = None,
         *,
         source: SourceOptions,
     ) -> None:
@@ -86,7 +118,11 @@ def _command(pipeline: str) -> Any:
         from slamcli.pipelines import get_pipeline
 
         settings = load_config(get_pipeline(pipeline).config_class, pipeline, config, set_ or ())
-        _run(pipeline, input, out, force, max_frames, mcap, source, settings, map_)
+        gates = _gates(pipeline, fail_if or [], baseline)
+        outcome = _run(pipeline, input, out, force, max_frames, mcap, source, settings, map_)
+        if gates:
+            _check_gates(gates, outcome.run_dir, baseline)
+        exit_if_data_lost(outcome)
 
     command.__doc__ = PIPELINES[pipeline].doc
     return boundary(source_options()(command))
@@ -106,7 +142,7 @@ def _run(
     opts: SourceOptions,
     settings: Any,
     build_map: bool = False,
-) -> None:
+) -> RunOutcome:
     from slamcli.run import run_pipeline
 
     with render.progress(f"{pipeline}") as progress:
@@ -125,4 +161,50 @@ def _run(
             map_progress=progress,
         )
     render.run_summary(outcome)
-    exit_if_data_lost(outcome)
+    return outcome
+
+
+def _gates(pipeline: str, texts: list[str], baseline: Path | None) -> list[Any]:
+    """The --fail-if gates, checked before the run: their syntax, their metrics, a
+    baseline for the gates that need one."""
+    from slamcli.batch.gates import GateError, parse_gate
+    from slamcli.batch.job import read_run_json
+    from slamcli.batch.metrics import known_metric
+
+    gates = [parse_gate(t) for t in texts]
+    for gate in gates:
+        if not known_metric(pipeline, gate.metric):
+            raise GateError(
+                f"--fail-if {gate.text!r}: a {pipeline} run has no metric {gate.metric!r}",
+                hint="metric names: ate.rmse, rpe.trans.rmse, ms_per_frame, frames.lost, and "
+                "the counts and metrics of run.json (see README.md, 'slamcli batch')",
+            )
+        if gate.uses_baseline and baseline is None:
+            raise GateError(
+                f"--fail-if {gate.text!r} compares with a baseline, but none was given",
+                hint="pass --baseline RUN_DIR (an earlier run folder)",
+            )
+    if baseline is not None and read_run_json(baseline) is None:
+        raise InputError(f"{baseline}: no run.json (--baseline takes a run folder)")
+    return gates
+
+
+def _check_gates(gates: list[Any], run_dir: Path, baseline: Path | None) -> None:
+    """Print every gate with its value; exit 3 when one holds."""
+    from slamcli.batch.gates import evaluate_gates
+    from slamcli.batch.job import read_run_json
+
+    record = read_run_json(run_dir) or {}
+    results = evaluate_gates(gates, record, read_run_json(baseline) if baseline else None)
+    render.table(
+        "Gates",
+        ["gate", "result"],
+        [[g.gate, ("FAILED: " if g.failed else "passed: ") + g.reason] for g in results],
+    )
+    failed = [g for g in results if g.failed]
+    if failed:
+        raise GateFailed(
+            f"{run_dir}: {len(failed)} of {len(results)} gate(s) failed: "
+            + "; ".join(g.reason for g in failed),
+            hint="the run folder is complete; the gates judge its figures",
+        )

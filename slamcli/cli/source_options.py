@@ -13,10 +13,12 @@ from __future__ import annotations
 import functools
 import inspect
 from collections.abc import Callable, Collection
-from dataclasses import dataclass, fields
+from dataclasses import fields
 from typing import Annotated, Any, TypeVar
 
 import typer
+
+from slamcli.formats.options import DEFAULTS, SourceOptions
 
 PANEL = "Input options"
 
@@ -158,47 +160,6 @@ GtFrame = Annotated[
     ),
 ]
 
-
-@dataclass(frozen=True)
-class SourceOptions:
-    """The shared source options, as given on the command line (None = not given)."""
-
-    max_dt: float = 0.02
-    dt_offset: float = 0.0
-    depth_factor: float | None = None
-    camera: str | None = None
-    fx: float | None = None
-    fy: float | None = None
-    cx: float | None = None
-    cy: float | None = None
-    undistort: bool = False
-    strict: bool = False
-    max_chunk_mb: int | None = None
-    robot: int | None = None
-    ignore_ids: bool = False
-    rgb_topic: str | None = None
-    depth_topic: str | None = None
-    camera_info_topic: str | None = None
-    odom_topic: str | None = None
-    gt_topic: str | None = None
-    gt_frame: str | None = None
-    landmark_topic: str | None = None
-
-    def open_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments for :func:`slamcli.formats.open_source`.
-
-        Only options that differ from their defaults are passed, so a format that takes fewer
-        options is not handed ones the user never set.
-        """
-        return {
-            f.name: getattr(self, f.name)
-            for f in fields(self)
-            if getattr(self, f.name) != getattr(DEFAULTS, f.name)
-        }
-
-
-DEFAULTS = SourceOptions()
-"""Default values, for commands' parameter defaults."""
 
 _OPTIONS: dict[str, Any] = {
     "max_dt": MaxDt,

@@ -81,8 +81,9 @@ when tracking is lost. RGB-D when the input has depth, monocular otherwise (or -
 mode=mono: a map without metric scale, scored after Sim(3) alignment). Writes trajectory.tum, \
 keyframes.tum, points.ply, graph.g2o, report.png and run.json (frames by tracking state, maps, \
 loop closures with their scores; ATE/RPE when the input has ground truth). Settings: 'slamcli \
-config dump visual'. Exits with 3 when frames had to be skipped.""",
-        example="slamcli run visual sample_data/rgbd_room --out runs/room_visual --force",
+config dump visual'. Exits with 3 when frames had to be skipped, or when a --fail-if gate holds.""",
+        example="slamcli run visual sample_data/rgbd_room --out runs/room_visual --force "
+        "--fail-if 'ate.rmse > 0.01' --fail-if 'frames.lost > 0'",
         produces=("trajectory.tum", "keyframes.tum", "points.ply", "graph.g2o", "report.png"),
         evaluation="se3",
     ),
