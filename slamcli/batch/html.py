@@ -49,6 +49,7 @@ th { background: #f2f4f7; }
 .better { color: #1f883d; }
 .worse { color: #cf222e; }
 .neutral { color: #57606a; }
+.error { color: #8250df; }
 ul.plain { list-style: none; margin: 0; padding: 0; }
 pre { background: #f6f8fa; padding: 0.6rem; overflow-x: auto; white-space: pre-wrap; }
 img { max-width: 100%; height: auto; border: 1px solid #d5dae1; }
@@ -157,6 +158,8 @@ def _summary(rows: Sequence[ReportRow], show_changes: bool) -> list[str]:
     out = ["<table>", "<tr>" + "".join(f"<th>{h}</th>" for h in head) + "</tr>"]
     for i, row in enumerate(rows, start=1):
         gates = "".join(_gate_item(g) for g in row.gates) or "<li>none</li>"
+        if row.status == "error" and row.error:
+            gates = f'<li class="error">{_e(row.error.splitlines()[0])}</li>'
         metrics = "".join(f"<li>{_e(k)} {_e(format_value(v))}</li>" for k, v in row.metrics.items())
         cells = [
             f'<a href="#job-{i}">{_e(row.name)}</a>',

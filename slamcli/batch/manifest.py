@@ -28,7 +28,7 @@ from __future__ import annotations
 import re
 import sys
 from collections.abc import Callable, Collection, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NoReturn
 
@@ -87,6 +87,8 @@ class JobSpec:
     build_map: bool
     mcap: bool
     line: int
+    key_lines: Mapping[str, int] = field(default_factory=dict, compare=False)
+    """The line of each key the job sets itself (``set``, ``source``, ...)."""
 
 
 @dataclass
@@ -373,6 +375,7 @@ class _Reader:
                     build_map=merged.get("map", False),
                     mcap=merged.get("mcap", False),
                     line=section.header,
+                    key_lines={key: section.key_line(key) for key in JOB_KEYS},
                 )
             )
         return specs

@@ -84,7 +84,6 @@ def plan_batch(
         InputError: ``baseline`` is not a batch folder.
     """
     from slamcli.batch.metrics import known_metric
-    from slamcli.formats.options import SourceOptions
     from slamcli.pipelines import PIPELINES
 
     path = Path(manifest)
@@ -110,22 +109,27 @@ def plan_batch(
             timeout_s=spec.timeout_s,
             command=f"batch {path.name}: {spec.name}",
         )
-        try:
-            job_config(job)
-            SourceOptions.from_mapping(job.source)
-        except ConfigError as exc:
-            raise ManifestError(
-                path, f'job "{spec.name}": {exc.msg}', spec.line, exc.hint
-            ) from None
+        for key, check in (("set", job_config), ("source", _check_source)):
+            try:
+                check(job)
+            except ConfigError as exc:
+                line = spec.key_lines.get(key, spec.line)
+                raise ManifestError(path, f'job "{spec.name}": {exc.msg}', line, exc.hint) from None
         if base is None and any(g.uses_baseline for g in spec.fail_if):
             raise ManifestError(
                 path,
                 f'job "{spec.name}": a fail_if gate compares with a baseline, but none was given',
-                spec.line,
+                spec.key_lines.get("fail_if", spec.line),
                 hint="pass --baseline OLD_BATCH_DIR (the --out of an earlier batch)",
             )
         jobs.append(job)
     return BatchPlan(path, out_dir, jobs, specs, base, baseline_jobs)
+
+
+def _check_source(job: RunJob) -> None:
+    from slamcli.formats.options import SourceOptions
+
+    SourceOptions.from_mapping(job.source)
 
 
 def _read_baseline(folder: Path) -> dict[str, dict[str, Any]]:
@@ -387,7 +391,7 @@ def write_records(plan: BatchPlan, results: Sequence[JobResult], executor: str) 
             gates=list(r.gates),
             metrics=key_metrics(r),
             changes=changes(plan, r),
-            run_link=f"{os.path.relpath(r.run_dir, plan.out)}/",
+            run_link=f"{os.path.relpath(r.run_dir, plan.out)}/" if Path(r.run_dir).is_dir() else "",
             report_png=(Path(r.run_dir) / "report.png")
             if (Path(r.run_dir) / "report.png").exists()
             else None,
