@@ -754,3 +754,203 @@ def test_every_malformed_trajectory_is_one_line_exit_1(
     bad = _tum(tmp_path / name, rows)
     res = _run(["eval", str(bad), str(bad), "--format", fmt])
     _assert_clean_error(res, *needles)
+
+
+# Several estimates against one ground truth.
+
+MULTI = [
+    "freiburg1_xyz-rgbdslam.txt",
+    "freiburg1_xyz-rgbdslam_drift.txt",
+    "freiburg1_xyz-ORB_kf_mono.txt",
+]
+
+
+def _json(args: list[str]) -> Any:
+    res = _run([*args, "--json"])
+    assert res.exit_code == 0, res.output
+    return json.loads(res.stdout)
+
+
+@pytest.mark.parametrize(
+    "options",
+    [["--rpe-delta", "1"], ["--align", "sim3", "--rpe-delta", "0.1", "--delta-unit", "m"]],
+)
+def test_several_estimates_score_as_each_alone(trajectories_dir: Path, options: list[str]) -> None:
+    gt = str(trajectories_dir / "freiburg1_xyz-groundtruth.txt")
+    ests = [str(trajectories_dir / name) for name in MULTI]
+    data = _json(["eval", gt, *ests, *options])
+    assert list(data) == ["groundtruth", "alignment", "estimates"]
+    assert data["groundtruth"] == gt
+    assert data["alignment"] == ("sim3" if "sim3" in options else "se3")
+    assert [e["path"] for e in data["estimates"]] == ests
+    for entry, est in zip(data["estimates"], ests, strict=True):
+        alone = _json(["eval", gt, est, *options])
+        assert list(entry) == ["path", *alone]
+        assert entry["pairs"] == alone["pairs"]
+        assert entry["scale"] == pytest.approx(alone["scale"], rel=1e-12)
+        assert entry["alignment"] == data["alignment"]
+        _assert_stats(entry["ate"], alone["ate"], f"{est} ATE")
+        _assert_stats(entry["rpe"]["trans"], alone["rpe"]["trans"], f"{est} RPE trans")
+        _assert_stats(entry["rpe"]["rot_deg"], alone["rpe"]["rot_deg"], f"{est} RPE rot")
+    # The estimates really differ, so a mix-up of rows would show.
+    assert len({e["pairs"] for e in data["estimates"]}) == 2
+    assert len({e["ate"]["rmse"] for e in data["estimates"]}) == 3
+
+
+def test_several_estimates_match_evo(trajectories_dir: Path) -> None:
+    d = trajectories_dir
+    data = _json(
+        [
+            "eval",
+            str(d / "freiburg1_xyz-groundtruth.txt"),
+            str(d / "freiburg1_xyz-rgbdslam.txt"),
+            str(d / "freiburg1_xyz-ORB_kf_mono.txt"),
+            "--align",
+            "sim3",
+            "--rpe-delta",
+            "1",
+        ]
+    )
+    rgbd, mono = data["estimates"]
+    ref = EVO_REFERENCE["fr1_orb_mono_sim3"]
+    assert mono["pairs"] == ref["pairs"]
+    assert mono["scale"] == pytest.approx(ref["scale"], rel=REL)
+    _assert_stats(mono["ate"], ref["ate"], "ATE")
+    _assert_stats(mono["rpe"]["trans"], ref["rpe_trans"], "RPE trans")
+    assert rgbd["pairs"] == 785
+
+
+def _table_rows(stdout: str) -> dict[str, list[str]]:
+    """The rows of the estimates table: name -> its cells."""
+    rows = {}
+    for line in stdout.splitlines():
+        cells = [c.strip() for c in line.split("│")]
+        if len(cells) > 2:
+            rows[cells[0]] = cells[1:]
+    return rows
+
+
+def test_table_has_a_row_per_estimate_and_marks_the_best(trajectories_dir: Path) -> None:
+    d = trajectories_dir
+    gt = str(d / "freiburg1_xyz-groundtruth.txt")
+    ests = [str(d / "freiburg1_xyz-rgbdslam.txt"), str(d / "freiburg1_xyz-ORB_kf_mono.txt")]
+    for align, best in (
+        ("se3", "freiburg1_xyz-rgbdslam.txt"),
+        ("sim3", "freiburg1_xyz-ORB_kf_mono.txt"),
+    ):
+        res = _run(["eval", gt, *ests, "--align", align, "--rpe-delta", "1"])
+        assert res.exit_code == 0, res.output
+        rows = _table_rows(res.stdout)
+        assert sorted(rows) == ["freiburg1_xyz-ORB_kf_mono.txt", "freiburg1_xyz-rgbdslam.txt"]
+        data = _json(["eval", gt, *ests, "--align", align, "--rpe-delta", "1"])
+        for name, entry in zip(
+            ["freiburg1_xyz-rgbdslam.txt", "freiburg1_xyz-ORB_kf_mono.txt"],
+            data["estimates"],
+            strict=True,
+        ):
+            cells = rows[name]
+            assert cells[0].split()[0] == str(entry["pairs"])
+            assert cells[1].rstrip("*") == f"{entry['ate']['rmse']:.6f}"
+            assert cells[1].endswith("*") == (name == best)
+            assert cells[2:5] == [f"{entry['ate'][k]:.6f}" for k in ("mean", "median", "max")]
+            assert cells[5] == f"{entry['rpe']['trans']['rmse']:.6f}"
+            assert cells[6] == f"{entry['rpe']['rot_deg']['rmse']:.6f}"
+    without_rpe = _run(["eval", gt, *ests])
+    assert "RPE" not in without_rpe.stdout
+    assert len(_table_rows(without_rpe.stdout)["freiburg1_xyz-rgbdslam.txt"]) == 5
+
+
+def test_rows_sharing_a_file_name_show_enough_of_the_path(tmp_path: Path) -> None:
+    gt = _line_trajectory(tmp_path / "gt.txt")
+    for sub in ("x/a", "y/a", "z"):
+        (tmp_path / sub).mkdir(parents=True)
+    a = _line_trajectory(tmp_path / "x" / "a" / "est.txt")
+    b = _line_trajectory(tmp_path / "y" / "a" / "est.txt")
+    c = _line_trajectory(tmp_path / "z" / "other.txt")
+    res = _run(["eval", str(gt), str(a), str(b), str(c)])
+    assert res.exit_code == 0, res.output
+    assert sorted(_table_rows(res.stdout)) == ["other.txt", "x/a/est.txt", "y/a/est.txt"]
+
+
+def _run_folder(path: Path, trajectory: Path | None) -> Path:
+    path.mkdir(parents=True)
+    (path / "run.json").write_text(json.dumps({"pipeline": "dense", "outputs": []}))
+    if trajectory is not None:
+        (path / "trajectory.tum").write_bytes(trajectory.read_bytes())
+    return path
+
+
+def test_a_run_folder_is_an_estimate(trajectories_dir: Path, tmp_path: Path) -> None:
+    d = trajectories_dir
+    gt = str(d / "freiburg1_xyz-groundtruth.txt")
+    rgbd = d / "freiburg1_xyz-rgbdslam.txt"
+    run = _run_folder(tmp_path / "runs" / "dense", rgbd)
+    mono = str(d / "freiburg1_xyz-ORB_kf_mono.txt")
+    data = _json(["eval", gt, str(run), mono])
+    assert [e["path"] for e in data["estimates"]] == [str(run), mono]
+    alone = _json(["eval", gt, str(rgbd)])
+    assert data["estimates"][0]["pairs"] == alone["pairs"] == 785
+    _assert_stats(data["estimates"][0]["ate"], alone["ate"], "ATE")
+    res = _run(["eval", gt, str(run), mono])
+    assert sorted(_table_rows(res.stdout)) == ["dense", "freiburg1_xyz-ORB_kf_mono.txt"]
+    # One run folder alone scores its trajectory.tum too.
+    single = _json(["eval", gt, str(run)])
+    assert single == alone
+
+
+def test_run_folder_without_trajectory_is_named(tmp_path: Path) -> None:
+    gt = _line_trajectory(tmp_path / "gt.txt")
+    est = _line_trajectory(tmp_path / "est.txt")
+    empty = _run_folder(tmp_path / "ekf_run", None)
+    _assert_clean_error(_run(["eval", str(gt), str(est), str(empty)]), "ekf_run", "trajectory.tum")
+    plain = tmp_path / "plain"
+    plain.mkdir()
+    _assert_clean_error(_run(["eval", str(gt), str(est), str(plain)]), "plain", "run.json")
+
+
+@pytest.mark.parametrize("json_out", [[], ["--json"]])
+def test_a_bad_estimate_among_several_stops_before_any_table(
+    tmp_path: Path, json_out: list[str]
+) -> None:
+    gt = _line_trajectory(tmp_path / "gt.txt")
+    good = _line_trajectory(tmp_path / "good.txt")
+    bad = _tum(tmp_path / "bad.txt", ["100.0 0 0 0 0 0 0 1", "100.1 0 0 zero 0 0 0 1"])
+    for order in ([good, bad], [bad, good]):
+        res = _run(["eval", str(gt), *map(str, order), *json_out])
+        _assert_clean_error(res, "bad.txt:2:", "zero")
+    missing = tmp_path / "missing.txt"
+    _assert_clean_error(_run(["eval", str(gt), str(good), str(missing), *json_out]), "missing.txt")
+
+
+def test_an_estimate_matching_too_few_poses_is_named(tmp_path: Path) -> None:
+    gt = _line_trajectory(tmp_path / "gt.txt", t0=100.0)
+    good = _line_trajectory(tmp_path / "good.txt", t0=100.0)
+    late = _line_trajectory(tmp_path / "late.txt", t0=101.9)
+    png = tmp_path / "m.png"
+    res = _run(["eval", str(gt), str(good), str(late), "--plot", str(png)])
+    _assert_clean_error(res, "late.txt: only 1 of 20 poses matched", "--t-offset")
+    assert "good.txt" not in res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["good.txt", "gt.txt", "late.txt"]
+
+
+def test_plot_of_several_estimates_is_one_png(trajectories_dir: Path, tmp_path: Path) -> None:
+    d = trajectories_dir
+    gt = str(d / "freiburg1_xyz-groundtruth.txt")
+    ests = [str(d / "freiburg1_xyz-rgbdslam.txt"), str(d / "freiburg1_xyz-ORB_kf_mono.txt")]
+    png = tmp_path / "many.png"
+    res = _run(["eval", gt, *ests, "--align", "sim3", "--plot", str(png), "--json"])
+    assert res.exit_code == 0, res.output
+    assert len(json.loads(res.stdout)["estimates"]) == 2
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert png.stat().st_size > 10_000
+    assert [p.name for p in tmp_path.iterdir()] == ["many.png"]
+    from PIL import Image
+
+    with Image.open(png) as im:
+        assert im.size == (1200, 500)
+        colours = {c for _, c in im.convert("RGB").getcolors(1_000_000) or []}
+    # The first two colours of the cycle (tab:blue, tab:orange) are both drawn.
+    assert (31, 119, 180) in colours and (255, 127, 14) in colours
+    shown = _run(["eval", gt, *ests, "--plot", str(png)])
+    assert shown.exit_code == 0
+    assert "Written" in shown.stdout and str(png) in shown.stdout.replace("\n", "")

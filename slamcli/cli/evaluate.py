@@ -1,22 +1,24 @@
-"""``slamcli eval``: score an estimated trajectory against ground truth (ATE, RPE)."""
+"""``slamcli eval``: score estimated trajectories against ground truth (ATE, RPE)."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from enum import Enum
-from pathlib import Path
-from typing import TYPE_CHECKING, Annotated
+from pathlib import Path, PurePath
+from typing import TYPE_CHECKING, Annotated, Any
 
 import typer
 
 from slamcli.cli import render
 from slamcli.cli.common import boundary
-from slamcli.errors import ConfigError
+from slamcli.errors import ConfigError, InputError
 
 if TYPE_CHECKING:
     from slamcli.evaluation import EvalResult
     from slamcli.formats.trajectory import PoseTable
 
-HELP = """Score an estimated trajectory against ground truth: ATE and, with --rpe-delta, RPE.
+HELP = """Score one or more estimated trajectories against ground truth: ATE and, with
+--rpe-delta, RPE.
 
 The figures equal evo's (evo_ape / evo_rpe 1.38) for the same files and options: the poses are
 associated by nearest timestamps (within --t-max-diff seconds, after adding --t-offset to the
@@ -31,10 +33,21 @@ a times file (--gt-times, --est-times); [bold]auto[/] decides per file from its 
 [bold]Alignment[/] (--align): se3 (evo --align), sim3 (evo --align --correct_scale, for monocular
 SLAM), scale (evo --correct_scale alone), none.
 
+[bold]Several estimates[/] (EST EST ...) are each scored exactly as one would be, with the same
+options, and shown as one table: a row per estimate (matched pairs, ATE rmse, mean, median, max,
+and the RPE rmse with --rpe-delta), the lowest ATE rmse marked with *. --json then prints
+{"groundtruth", "alignment", "estimates": [{"path", ...one estimate's fields}]} and --plot
+draws every aligned estimate over the ground truth. An EST may be a run folder (the --out of
+'slamcli run ...'): its trajectory.tum is scored and the row is named by the folder.
+
 Examples:
 
 [bold]slamcli eval ../shared/data/trajectories/freiburg1_xyz-groundtruth.txt \
 ../shared/data/trajectories/freiburg1_xyz-rgbdslam.txt[/]
+
+[bold]slamcli eval ../shared/data/trajectories/freiburg1_xyz-groundtruth.txt \
+../shared/data/trajectories/freiburg1_xyz-rgbdslam.txt \
+../shared/data/trajectories/freiburg1_xyz-ORB_kf_mono.txt --align sim3 --rpe-delta 1[/]
 
 [bold]slamcli eval ../shared/data/trajectories/fr2_desk_groundtruth.txt \
 ../shared/data/trajectories/fr2_desk_ORB_kf_mono.txt --align sim3 --rpe-delta 1[/]
@@ -46,7 +59,8 @@ Examples:
 ../shared/data/trajectories/KITTI_00_ORB.txt --format kitti --rpe-delta 100 --delta-unit m \
 --plot ate.png[/]
 
-Exit codes: 0 ok; 1 unreadable or malformed file, too few matched poses, bad option value.
+Exit codes: 0 ok; 1 unreadable or malformed file, too few matched poses, bad option value
+(with several estimates: any of them, named in the message; nothing is printed on stdout).
 """
 
 
@@ -76,7 +90,14 @@ def register(app: typer.Typer) -> None:
 @boundary
 def eval_command(
     gt: Annotated[Path, typer.Argument(help="Ground-truth trajectory file.", show_default=False)],
-    est: Annotated[Path, typer.Argument(help="Estimated trajectory file.", show_default=False)],
+    ests: Annotated[
+        list[Path],
+        typer.Argument(
+            help="Estimated trajectory files or run folders (their trajectory.tum); one or more.",
+            show_default=False,
+            metavar="est",
+        ),
+    ],
     format: Annotated[
         TrajFormat,
         typer.Option("--format", "-f", help="File formats (see above); auto reads the contents."),
@@ -122,7 +143,7 @@ def eval_command(
         Path | None,
         typer.Option(
             "--plot",
-            help="Write a PNG: top view of GT and the aligned estimate, ATE over time.",
+            help="Write a PNG: top view of GT and the aligned estimate(s), ATE over time.",
             show_default=False,
         ),
     ] = None,
@@ -130,22 +151,23 @@ def eval_command(
         bool, typer.Option("--json", help="Print one JSON object on stdout instead of tables.")
     ] = False,
 ) -> None:
-    from slamcli.evaluation import evaluate
-
     if plot is not None and plot.suffix.lower() != ".png":
         raise ConfigError(f"--plot {plot}: expected a .png file name")
-    gt_poses, est_poses = _load(gt, est, format.value, gt_times, est_times)
-    by_index = not (gt_poses.timed and est_poses.timed)
-    result = evaluate(
-        gt_poses,
-        est_poses,
-        align=align.value,
-        max_diff_s=t_max_diff,
-        offset_s=t_offset,
-        by_index=by_index,
-        rpe_delta=rpe_delta,
-        delta_unit=delta_unit.value,
-    )
+    gt_poses, est_tables = _load(gt, ests, format.value, gt_times, est_times)
+    options = {
+        "align": align.value,
+        "max_diff_s": t_max_diff,
+        "offset_s": t_offset,
+        "rpe_delta": rpe_delta,
+        "delta_unit": delta_unit.value,
+    }
+    if len(ests) > 1:
+        scored = [_score(gt_poses, entry, options, named=True) for entry in est_tables]
+        _report_many(gt, gt_poses, scored, align.value, plot, json_out, t_max_diff, t_offset)
+        return
+    est = est_tables[0]
+    one = _score(gt_poses, est, options, named=False)
+    result, by_index = one.result, one.by_index
     if plot is not None:
         from slamcli.report import plot_evaluation
 
@@ -153,7 +175,7 @@ def eval_command(
             plot,
             result,
             f"GT: {gt_poses.path.name}",
-            f"EST: {est_poses.path.name}",
+            f"EST: {est.label.name}",
             timed=not by_index,
         )
     if json_out:
@@ -161,48 +183,252 @@ def eval_command(
         if plot is not None:
             render.note(f"wrote {plot}")
         return
-    _show(result, gt_poses, est_poses, by_index, t_max_diff, t_offset)
+    _show(result, gt_poses, est.poses, by_index, t_max_diff, t_offset)
     if plot is not None:
         render.written([plot])
 
 
+@dataclass(frozen=True)
+class _Estimate:
+    """One EST argument: the path as given (a file or a run folder) and the poses read."""
+
+    label: Path
+    poses: PoseTable
+
+
+@dataclass(frozen=True)
+class _Scored:
+    """One estimate's evaluation."""
+
+    label: Path
+    result: EvalResult
+    by_index: bool
+
+
+def _trajectory_file(est: Path) -> Path:
+    """The file to read for an EST argument: the file itself, or a run folder's trajectory.tum."""
+    if not est.is_dir():
+        return est
+    from slamcli.formats.run_folder import read_run
+
+    return read_run(est).require("trajectory")
+
+
 def _load(
-    gt: Path, est: Path, format: str, gt_times: Path | None, est_times: Path | None
-) -> tuple[PoseTable, PoseTable]:
+    gt: Path, ests: list[Path], format: str, gt_times: Path | None, est_times: Path | None
+) -> tuple[PoseTable, list[_Estimate]]:
     from slamcli.formats.trajectory import read_poses, sniff_trajectory_format
 
+    files = [_trajectory_file(est) for est in ests]
     if format == "euroc":
-        gt_format, est_format = "euroc", "tum"
+        gt_format, est_formats = "euroc", ["tum" for _ in files]
     elif format == "auto":
-        gt_format, est_format = sniff_trajectory_format(gt), sniff_trajectory_format(est)
+        gt_format = sniff_trajectory_format(gt)
+        est_formats = [sniff_trajectory_format(f) for f in files]
     else:
-        gt_format = est_format = format
-    for times, fmt, name in (
-        (gt_times, gt_format, "--gt-times"),
-        (est_times, est_format, "--est-times"),
-    ):
+        gt_format, est_formats = format, [format for _ in files]
+    # A run folder's trajectory.tum is TUM whatever the ground truth is.
+    est_formats = [
+        "tum" if file != est else fmt
+        for est, file, fmt in zip(ests, files, est_formats, strict=True)
+    ]
+    checks = [(gt_times, gt_format, "--gt-times")]
+    checks += [(est_times, fmt, "--est-times") for fmt in est_formats]
+    for times, fmt, name in checks:
         if times is not None and fmt != "kitti":
             raise ConfigError(
                 f"{name} only goes with a KITTI file, and this one is {fmt}",
                 hint="TUM and EuRoC files carry their own timestamps",
             )
-    tables = (
-        read_poses(gt, gt_format, times=gt_times),
-        read_poses(est, est_format, times=est_times),
-    )
-    for table in tables:
+    gt_table = read_poses(gt, gt_format, times=gt_times)
+    est_tables = [
+        read_poses(file, fmt, times=est_times) for file, fmt in zip(files, est_formats, strict=True)
+    ]
+    for table in (gt_table, *est_tables):
         rep = table.repeated()
         if rep.size:
             render.warn(
                 f"{table.path}: {rep.size} row(s) repeat the previous timestamp (first at line "
                 f"{int(table.lines[rep[0]])}); each row is evaluated as its own pose, as evo does"
             )
-    if tables[0].timed != tables[1].timed:
-        untimed = tables[0] if not tables[0].timed else tables[1]
+    untimed = [
+        (gt_table if not gt_table.timed else table).path
+        for table in est_tables
+        if gt_table.timed != table.timed
+    ]
+    for path in dict.fromkeys(untimed):
         render.warn(
-            f"{untimed.path} has no timestamps (KITTI without a times file): pairing poses by index"
+            f"{path} has no timestamps (KITTI without a times file): pairing poses by index"
         )
-    return tables
+    return gt_table, [_Estimate(e, t) for e, t in zip(ests, est_tables, strict=True)]
+
+
+def _score(gt: PoseTable, est: _Estimate, options: dict[str, Any], named: bool) -> _Scored:
+    """Evaluate one estimate; with ``named``, an input error says which estimate it is about."""
+    from slamcli.evaluation import evaluate
+
+    by_index = not (gt.timed and est.poses.timed)
+    try:
+        result = evaluate(gt, est.poses, by_index=by_index, **options)
+    except InputError as exc:
+        if not named:
+            raise
+        raise InputError(f"{est.label}: {exc.msg}", hint=exc.hint) from None
+    return _Scored(est.label, result, by_index)
+
+
+def _display_names(paths: list[Path]) -> list[str]:
+    """Short names for paths: the last component, or as many trailing components as it takes
+    to tell apart paths that share their last ones (the same path twice keeps one name)."""
+    parts = [PurePath(p).parts for p in paths]
+    names = []
+    for mine in parts:
+        others = [theirs for theirs in parts if theirs != mine]
+        k = 1
+        while k < len(mine) and any(theirs[-k:] == mine[-k:] for theirs in others):
+            k += 1
+        names.append(str(PurePath(*mine[-k:])))
+    return names
+
+
+def _report_many(
+    gt: Path,
+    gt_poses: PoseTable,
+    scored: list[_Scored],
+    align: str,
+    plot: Path | None,
+    json_out: bool,
+    t_max_diff: float,
+    t_offset: float,
+) -> None:
+    names = _display_names([s.label for s in scored])
+    if plot is not None:
+        _plot_many(plot, gt_poses, scored, names)
+    if json_out:
+        render.print_json(
+            {
+                "groundtruth": str(gt),
+                "alignment": align,
+                "estimates": [{"path": str(s.label), **s.result.to_dict()} for s in scored],
+            }
+        )
+        if plot is not None:
+            render.note(f"wrote {plot}")
+        return
+    _show_many(gt_poses, scored, names, align, t_max_diff, t_offset)
+    if plot is not None:
+        render.written([plot])
+
+
+def _show_many(
+    gt: PoseTable,
+    scored: list[_Scored],
+    names: list[str],
+    align: str,
+    t_max_diff: float,
+    t_offset: float,
+) -> None:
+    first = scored[0].result
+    facts = {
+        "ground truth": f"{gt.path} ({gt.format}, {len(gt)} poses)",
+        "estimates": str(len(scored)),
+        "pairing": f"by time (max diff {t_max_diff:g} s, offset {t_offset:g} s)"
+        if not all(s.by_index for s in scored)
+        else "by index",
+        "alignment": align,
+    }
+    if first.rpe is not None:
+        facts["RPE"] = f"over pose pairs {_spacing(first)} apart"
+    render.key_values("Evaluation", facts)
+    best = min(s.result.ate.rmse for s in scored)
+    with_scale = align in ("sim3", "scale")
+    with_rpe = first.rpe is not None
+    columns = ["estimate", "pairs", "ATE rmse", "mean", "median", "max"]
+    if with_rpe:
+        columns += ["RPE trans rmse", "RPE rot rmse"]
+    if with_scale:
+        columns.append("scale")
+    rows = []
+    for name, s in zip(names, scored, strict=True):
+        r = s.result
+        pairs = f"{r.pairs} by index" if s.by_index else f"{r.pairs} of {r.matched.possible}"
+        mark = "*" if r.ate.rmse == best else " "
+        row = [name, pairs, f"{r.ate.rmse:.6f}{mark}"]
+        row += [f"{r.ate.mean:.6f}", f"{r.ate.median:.6f}", f"{r.ate.max:.6f}"]
+        if r.rpe is not None:
+            row += [f"{r.rpe.trans.rmse:.6f}", f"{r.rpe.rot.rmse:.6f}"]
+        if with_scale:
+            row.append(f"{r.scale:.6f}")
+        rows.append(row)
+    units = "ATE in m" + (", RPE trans in m, rot in deg" if with_rpe else "")
+    _wide_table(f"{len(scored)} estimates ({units}); * lowest ATE rmse", columns, rows)
+
+
+def _wide_table(title: str, columns: list[str], rows: list[list[str]]) -> None:
+    """A table like :func:`render.table` whose cells are never cut or wrapped: on a narrow
+    terminal its lines run past the edge rather than shorten the estimates' paths."""
+    from rich.markup import escape
+    from rich.measure import Measurement
+    from rich.segment import Segments
+    from rich.table import Table
+
+    t = Table(title=title, title_justify="left", show_edge=False, header_style="bold")
+    for i, c in enumerate(columns):
+        t.add_column(c, justify="left" if i == 0 else "right", no_wrap=True)
+    for r in rows:
+        t.add_row(*(escape(v) for v in r))
+    console = render.out
+    wide = console.options.update_width(10_000)
+    width = max(console.width, Measurement.get(console, wide, t).maximum)
+    lines = console.render_lines(t, console.options.update_width(width), new_lines=True)
+    console.print(Segments([seg for line in lines for seg in line]))
+
+
+def _spacing(result: EvalResult) -> str:
+    assert result.rpe is not None
+    d = result.rpe.delta
+    unit = ("frame" if d == 1 else "frames") if result.rpe.delta_unit == "frames" else "m"
+    return f"{d:g} {unit}"
+
+
+def _plot_many(path: Path, gt: PoseTable, scored: list[_Scored], names: list[str]) -> Path:
+    """A PNG: the ground truth and every aligned estimate from above, and each one's ATE over
+    time (over the frame index when any estimate is paired by index), one colour each."""
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from slamcli.report import save_png
+
+    gt_xyz = gt.positions
+    ax0, ax1 = sorted(np.argsort(np.ptp(gt_xyz, axis=0))[-2:].tolist())
+    timed = not any(s.by_index for s in scored)
+    t0 = min(int(s.result.matched.stamps_ns[0]) for s in scored)
+    fig = Figure(figsize=(12, 5))
+    FigureCanvasAgg(fig)
+    margins = {"left": 0.07, "right": 0.985, "bottom": 0.11, "top": 0.91, "wspace": 0.2}
+    top, err = fig.subplots(1, 2, width_ratios=(1, 1.3), gridspec_kw=margins)
+    top.plot(gt_xyz[:, ax0], gt_xyz[:, ax1], color="0.35", lw=1.5, ls="--", label="ground truth")
+    colours = [f"C{i % 10}" for i in range(len(scored))]
+    for name, s, colour in zip(names, scored, colours, strict=True):
+        r = s.result
+        est_xyz = r.aligned_est[:, :3, 3]
+        top.plot(est_xyz[:, ax0], est_xyz[:, ax1], color=colour, lw=1.1, label=name)
+        m = r.matched
+        t = (m.stamps_ns - t0) * 1e-9 if timed else m.est_index.astype(float)
+        err.plot(t, r.ate_m, color=colour, lw=1.0, label=f"{name} (rmse {r.ate.rmse:.4f} m)")
+    top.set_aspect("equal", adjustable="datalim")
+    top.set_xlabel(f"{'xyz'[ax0]} (m)")
+    top.set_ylabel(f"{'xyz'[ax1]} (m)")
+    top.set_title(f"Top view, {scored[0].result.alignment} alignment, {len(scored)} estimates")
+    top.legend(loc="best", fontsize="small")
+    top.grid(alpha=0.3)
+    err.set_xlabel("time since the first pair (s)" if timed else "frame index")
+    err.set_ylabel("position error (m)")
+    err.set_title("Absolute trajectory error")
+    err.legend(loc="upper right", fontsize="small")
+    err.grid(alpha=0.3)
+    return save_png(fig, path)
 
 
 def _show(
