@@ -274,42 +274,6 @@ def test_a_job_whose_process_dies_is_tried_again(
     assert gone.status == "error" and gone.attempts == 3 and "signal 11" in gone.error
 
 
-def test_dask_cluster_and_local_pool_give_the_same_bytes(data: Path, tmp_path: Path) -> None:
-    pytest.importorskip("distributed")
-    from distributed import LocalCluster
-
-    manifest = _manifest(
-        tmp_path,
-        FAST.replace('"world"', f'"{data / "world"}"')
-        .replace('"room"', f'"{data / "room"}"')
-        .split('fail_if = ["ate.rmse > 1.10')[0],
-    )
-    local = run_batch(plan_batch(manifest, tmp_path / "local"), jobs=2)
-    with LocalCluster(
-        n_workers=2,
-        threads_per_worker=1,
-        host="127.0.0.1",
-        dashboard_address=None,
-        processes=True,
-    ) as cluster:
-        res = _batch(
-            [
-                str(manifest),
-                "--out",
-                str(tmp_path / "dask"),
-                "--scheduler",
-                cluster.scheduler_address,
-            ]
-        )
-    assert res.exit_code == 0, res.output
-    record = json.loads((tmp_path / "dask" / "batch.json").read_text())
-    assert record["executor"].startswith("dask tcp://127.0.0.1:")
-    assert [j["status"] for j in record["jobs"]] == [r.status for r in local.results]
-    dask_files = _job_files(tmp_path / "dask")
-    assert dask_files == _job_files(tmp_path / "local")
-    assert set(dask_files) == {"ekf-world", "visual-room"}
-
-
 def test_an_unreachable_scheduler_is_a_one_line_error(data: Path, tmp_path: Path) -> None:
     pytest.importorskip("distributed")
     manifest = _manifest(
@@ -366,3 +330,129 @@ def test_run_fail_if_exits_3_with_the_folder_complete(tmp_path: Path) -> None:
     )
     assert bad.exit_code == 1 and "fram.lost" in bad.output
     assert not (tmp_path / "no").exists()
+
+
+# --- the issue's acceptance manifest, over the shared data --------------------------------------
+
+SHARED_MANIFEST = """
+[defaults]
+fail_if = ["ate.rmse > 0.1"]
+
+[[job]]
+name = "dense-rpy"
+input = "{tum}"
+pipeline = "dense"
+max_frames = 40
+fail_if = ["ate.rmse > 0.03", "frames.lost > 0"]
+
+[[job]]
+name = "visual-rpy"
+input = "{tum}"
+pipeline = "visual"
+fail_if = ["ate.rmse > 0.03", "frames.lost > 0"]
+
+[[job]]
+name = "visual-rpy-impossible"
+input = "{tum}"
+pipeline = "visual"
+max_frames = 30
+fail_if = ["ate.rmse > 0.0001"]
+
+[[job]]
+name = "missing-log"
+input = "{tum}_not_there"
+pipeline = "visual"
+""" + "".join(
+    f"""
+[[job]]
+name = "ekf-mrclam-{n}"
+input = "{{mrclam}}"
+pipeline = "ekf"
+source = {{ robot = {n} }}
+fail_if = ["ate.rmse > 0.5", "landmarks.rmse_m > 0.5"]
+"""
+    for n in range(1, 6)
+)
+
+
+@pytest.fixture(scope="module")
+def shared_batch(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
+    """The manifest run with --jobs 2 through the CLI, and again on a Dask LocalCluster."""
+    from conftest import shared_path
+
+    tum = shared_path("tum", "rgbd_dataset_freiburg1_rpy_excerpt")
+    mrclam = shared_path("landmarks", "MRCLAM_Dataset6")
+    root = tmp_path_factory.mktemp("shared_batch")
+    manifest = root / "ci.toml"
+    manifest.write_text(SHARED_MANIFEST.replace("{tum}", str(tum)).replace("{mrclam}", str(mrclam)))
+    local = _batch([str(manifest), "--out", str(root / "local"), "--jobs", "2"])
+    return {"root": root, "manifest": manifest, "local": local}
+
+
+def test_shared_manifest_statuses_exit_code_and_junit(shared_batch: dict[str, Any]) -> None:
+    from junitparser import Error, Failure, JUnitXml
+
+    res = shared_batch["local"]
+    assert res.exit_code == 1, res.output  # the missing log could not run
+    out = shared_batch["root"] / "local"
+    record = json.loads((out / "batch.json").read_text())
+    status = {j["name"]: j["status"] for j in record["jobs"]}
+    assert status.pop("missing-log") == "error"
+    assert status.pop("visual-rpy-impossible") == "gate_failed"
+    assert set(status.values()) == {"passed"}, status
+    assert len(status) == 7
+    missing = next(j for j in record["jobs"] if j["name"] == "missing-log")
+    assert "_not_there" in missing["error"]
+    robots = {j["name"]: j for j in record["jobs"] if j["name"].startswith("ekf-mrclam-")}
+    # Each robot's own log: five different trajectories.
+    assert len({(out / n / "trajectory.tum").read_bytes() for n in robots}) == 5
+
+    # junit.xml as an independent parser reads it.
+    suites = list(JUnitXml.fromfile(str(out / "junit.xml")))
+    assert len(suites) == 1
+    suite = suites[0]
+    assert (suite.tests, suite.failures, suite.errors) == (9, 1, 1)
+    results = {case.name: case.result for case in suite}
+    assert [type(r) for r in results["visual-rpy-impossible"]] == [Failure]
+    assert [type(r) for r in results["missing-log"]] == [Error]
+    assert all(results[name] == [] for name in status)
+    assert all(case.classname in ("dense", "visual", "ekf") for case in suite)
+
+
+def test_shared_manifest_on_a_dask_cluster_gives_the_same_trajectories(
+    shared_batch: dict[str, Any],
+) -> None:
+    pytest.importorskip("distributed")
+    from distributed import LocalCluster
+
+    root = shared_batch["root"]
+    with LocalCluster(
+        n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None
+    ) as cluster:
+        res = _batch(
+            [
+                str(shared_batch["manifest"]),
+                "--out",
+                str(root / "dask"),
+                "--scheduler",
+                cluster.scheduler_address,
+            ]
+        )
+    assert res.exit_code == 1, res.output
+    local, remote = _job_files(root / "local"), _job_files(root / "dask")
+    assert len(local) == 8 and local == remote
+
+
+def test_resume_after_a_finished_batch_runs_nothing(shared_batch: dict[str, Any]) -> None:
+    import time
+
+    root = shared_batch["root"]
+    before = {p: p.stat().st_mtime_ns for p in (root / "local").glob("*/run.json")}
+    start = time.perf_counter()
+    res = _batch([str(shared_batch["manifest"]), "--out", str(root / "local"), "--resume"])
+    seconds = time.perf_counter() - start
+    assert res.exit_code == 1, res.output  # the missing log is tried again and fails again
+    record = json.loads((root / "local" / "batch.json").read_text())
+    assert [j["name"] for j in record["jobs"] if not j["resumed"]] == ["missing-log"]
+    assert {p: p.stat().st_mtime_ns for p in before} == before
+    assert seconds < 20, seconds  # hashing the inputs and a failed open, no pipeline run

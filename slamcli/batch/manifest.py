@@ -394,12 +394,8 @@ class _Reader:
                     hint="input paths are relative to the manifest's folder",
                 )
             return matches
-        if not full.exists():
-            raise self.error(
-                line,
-                f'{label}: input "{pattern}" does not exist (resolved against {self.base})',
-                hint="input paths are relative to the manifest's folder",
-            )
+        # A missing input is the job's own failure (status "error" when it runs), not the
+        # manifest's: the other jobs still run, as they would when a log disappears.
         return [full]
 
     def check_name(self, name: str, line: int, label: str, match: Path | None) -> None:
