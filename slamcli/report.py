@@ -52,20 +52,30 @@ def plot_evaluation(
         top, err = fig.subplots(1, 2, width_ratios=(1, 1.3), gridspec_kw=margins)
     top.plot(gt_xyz[:, ax0], gt_xyz[:, ax1], color="0.35", lw=1.5, ls="--", label=gt_label)
     top.plot(est_xyz[:, ax0], est_xyz[:, ax1], color="tab:blue", lw=1.2, label=est_label)
-    top.set_aspect("equal", adjustable="datalim")
-    top.set_xlabel(f"{'xyz'[ax0]} (m)")
-    top.set_ylabel(f"{'xyz'[ax1]} (m)")
-    top.set_title(f"Top view, {result.alignment} alignment, {result.pairs} pairs")
-    top.legend(loc="best", fontsize="small")
-    top.grid(alpha=0.3)
     err.plot(t, result.ate_m, color="tab:red", lw=1.0, label="ATE")
     err.axhline(result.ate.rmse, color="k", lw=1.0, ls=":", label=f"rmse {result.ate.rmse:.4f} m")
-    err.set_xlabel("time since first pair (s)" if timed else "frame index")
+    finish_evaluation_axes(
+        top, err, (ax0, ax1), f"Top view, {result.alignment} alignment, {result.pairs} pairs", timed
+    )
+    return save_png(fig, path)
+
+
+def finish_evaluation_axes(
+    top: Any, err: Any, axes: tuple[int, int], title: str, timed: bool
+) -> None:
+    """Labels, legends and grids of an evaluation figure's top view (world axes ``axes``)
+    and its error-over-time panel."""
+    top.set_aspect("equal", adjustable="datalim")
+    top.set_xlabel(f"{'xyz'[axes[0]]} (m)")
+    top.set_ylabel(f"{'xyz'[axes[1]]} (m)")
+    top.set_title(title)
+    top.legend(loc="best", fontsize="small")
+    top.grid(alpha=0.3)
+    err.set_xlabel("time since the first pair (s)" if timed else "frame index")
     err.set_ylabel("position error (m)")
     err.set_title("Absolute trajectory error")
     err.legend(loc="upper right", fontsize="small")
     err.grid(alpha=0.3)
-    return save_png(fig, path)
 
 
 def _mesh_view(ax: Any, mesh: TriangleMesh, result: EvalResult) -> None:

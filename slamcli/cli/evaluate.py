@@ -398,7 +398,7 @@ def _plot_many(path: Path, gt: PoseTable, scored: list[_Scored], names: list[str
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from slamcli.report import save_png
+    from slamcli.report import finish_evaluation_axes, save_png
 
     gt_xyz = gt.positions
     ax0, ax1 = sorted(np.argsort(np.ptp(gt_xyz, axis=0))[-2:].tolist())
@@ -417,17 +417,8 @@ def _plot_many(path: Path, gt: PoseTable, scored: list[_Scored], names: list[str
         m = r.matched
         t = (m.stamps_ns - t0) * 1e-9 if timed else m.est_index.astype(float)
         err.plot(t, r.ate_m, color=colour, lw=1.0, label=f"{name} (rmse {r.ate.rmse:.4f} m)")
-    top.set_aspect("equal", adjustable="datalim")
-    top.set_xlabel(f"{'xyz'[ax0]} (m)")
-    top.set_ylabel(f"{'xyz'[ax1]} (m)")
-    top.set_title(f"Top view, {scored[0].result.alignment} alignment, {len(scored)} estimates")
-    top.legend(loc="best", fontsize="small")
-    top.grid(alpha=0.3)
-    err.set_xlabel("time since the first pair (s)" if timed else "frame index")
-    err.set_ylabel("position error (m)")
-    err.set_title("Absolute trajectory error")
-    err.legend(loc="upper right", fontsize="small")
-    err.grid(alpha=0.3)
+    title = f"Top view, {scored[0].result.alignment} alignment, {len(scored)} estimates"
+    finish_evaluation_axes(top, err, (ax0, ax1), title, timed)
     return save_png(fig, path)
 
 
