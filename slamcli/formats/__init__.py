@@ -13,6 +13,7 @@ from slamcli.formats.base import Frame, ReadStats, Source, SourceInfo, StreamInf
 
 SOURCES: dict[str, str] = {
     "tum": "slamcli.formats.tum_rgbd:TumRgbdSource",
+    "redwood": "slamcli.formats.redwood:RedwoodSource",
     "mcap": "slamcli.formats.mcap.source:McapSource",
     "mrclam": "slamcli.formats.landmarks:MrclamSource",
     "victoria": "slamcli.formats.landmarks:VictoriaParkSource",
@@ -24,6 +25,7 @@ loads one. Each class has ``sniff(path) -> bool`` and ``open(path, **options)``.
 
 SNIFFERS: dict[str, Callable[[str | Path], bool]] = {
     "tum": sniff.tum_rgbd,
+    "redwood": sniff.redwood,
     "mcap": sniff.mcap,
     "mrclam": sniff.mrclam,
     "victoria": sniff.victoria_park,
@@ -31,9 +33,10 @@ SNIFFERS: dict[str, Callable[[str | Path], bool]] = {
 }
 """The cheap test of each format (what its class's ``sniff`` calls), importing no source.
 
-They look at disjoint things (TUM: rgb.txt/depth.txt; MCAP: suffix or magic; MRCLAM:
-Barcodes.dat and RobotN_Odometry.dat; Victoria Park: the first record's keyword; synth
-landmarks: odometry.csv and measurements.csv), so the order only matters for odd mixtures."""
+They look at disjoint things (TUM: rgb.txt/depth.txt; Open3D/Redwood: depth/ beside image/
+or color/; MCAP: suffix or magic; MRCLAM: Barcodes.dat and RobotN_Odometry.dat; Victoria Park:
+the first record's keyword; synth landmarks: odometry.csv and measurements.csv), so the order
+only matters for odd mixtures."""
 
 
 def source_class(name: str) -> Any:
@@ -49,9 +52,10 @@ def source_class(name: str) -> Any:
 
 
 _LAYOUTS = (
-    "a TUM RGB-D folder has rgb.txt and depth.txt; an MRCLAM folder Barcodes.dat and "
-    "RobotN_Odometry.dat; a 'slamcli synth landmarks' folder odometry.csv and measurements.csv; "
-    "an MCAP log starts with the MCAP magic; a Victoria Park file has ODOMETRY and LANDMARK lines"
+    "a TUM RGB-D folder has rgb.txt and depth.txt; an Open3D/Redwood RGB-D folder image/ (or "
+    "color/) and depth/; an MRCLAM folder Barcodes.dat and RobotN_Odometry.dat; a 'slamcli "
+    "synth landmarks' folder odometry.csv and measurements.csv; an MCAP log starts with the "
+    "MCAP magic; a Victoria Park file has ODOMETRY and LANDMARK lines"
 )
 
 

@@ -15,6 +15,9 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 VICTORIA_KEYWORDS = ("ODOMETRY", "LANDMARK")
 """The record keywords that start the lines of a Victoria Park file."""
 
+REDWOOD_COLOUR_FOLDERS = ("image", "color")
+"""The colour-image folders of an Open3D / Redwood RGB-D folder, in the order looked for."""
+
 _HEAD_BYTES = 4096
 
 
@@ -22,6 +25,16 @@ def tum_rgbd(path: str | Path) -> bool:
     """A folder with ``rgb.txt`` or ``depth.txt`` (the source names whichever is missing)."""
     p = Path(path)
     return p.is_dir() and ((p / "rgb.txt").is_file() or (p / "depth.txt").is_file())
+
+
+def redwood(path: str | Path) -> bool:
+    """A folder with a ``depth/`` folder and an ``image/`` or ``color/`` folder beside it."""
+    p = Path(path)
+    return (
+        p.is_dir()
+        and (p / "depth").is_dir()
+        and any((p / name).is_dir() for name in REDWOOD_COLOUR_FOLDERS)
+    )
 
 
 def mcap(path: str | Path) -> bool:
@@ -76,11 +89,13 @@ def landmark_world(path: str | Path) -> bool:
 
 __all__ = [
     "MCAP_MAGIC",
+    "REDWOOD_COLOUR_FOLDERS",
     "VICTORIA_KEYWORDS",
     "landmark_world",
     "mcap",
     "mrclam",
     "mrclam_robots",
+    "redwood",
     "tum_rgbd",
     "victoria_park",
 ]
