@@ -183,8 +183,8 @@ def result_from_run(
 def run_job(job: RunJob) -> JobResult:
     """Run ``job`` in this process; every failure becomes a result with status ``error``
     (Ctrl-C still interrupts)."""
-    from slamcli.formats.options import SourceOptions
     from slamcli.run import run_pipeline
+    from slamcli.source_options import SourceOptions
 
     start = time.perf_counter()
     try:

@@ -25,7 +25,14 @@ from slamcli.errors import ConfigError, InputError
 
 BATCH_SCHEMA_VERSION = 1
 
-KEY_METRICS = ("ate.rmse", "rpe.trans.rmse", "landmarks.rmse_m", "ms_per_frame", "frames.lost")
+KEY_METRICS = (
+    "ate.rmse",
+    "rpe.trans.rmse",
+    "landmarks.rmse_m",
+    "ms_per_frame",
+    "memory.peak_rss_mb",
+    "frames.lost",
+)
 """Shown for every job that has them (with its gate metrics), and compared with a baseline."""
 
 ResultFn = Callable[[JobResult, int, int], None]
@@ -127,7 +134,7 @@ def plan_batch(
 
 
 def _check_source(job: RunJob) -> None:
-    from slamcli.formats.options import SourceOptions
+    from slamcli.source_options import SourceOptions
 
     SourceOptions.from_mapping(job.source)
 
@@ -151,8 +158,8 @@ def is_done(job: RunJob) -> bool:
     every output it lists, and the same slamcli version, pipeline, settings, source options,
     run options and input hash."""
     from slamcli import __version__
-    from slamcli.formats.options import SourceOptions
     from slamcli.rundir import hash_input
+    from slamcli.source_options import SourceOptions
 
     record = read_run_json(job.out)
     if record is None:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import NoReturn
+
 import typer
 
 from slamcli import __version__
@@ -78,4 +80,31 @@ _register()
 
 
 def main() -> None:
-    app()
+    """The ``slamcli`` command."""
+    try:
+        app()
+    except SystemExit as exc:
+        if exc.code == 130:
+            _exit_interrupted()
+        raise
+
+
+def _exit_interrupted() -> NoReturn:
+    """End an interrupted command with exit status 130, after the exit handlers.
+
+    The error boundary turns Ctrl-C into exit status 130, but a loaded machine showed the
+    interpreter still ending by SIGINT afterwards now and then (status -2), which scripts and
+    CI read as a crash. The exit handlers run here and the process ends at once with 130.
+    """
+    import atexit
+    import contextlib
+    import os
+    import sys
+
+    try:
+        atexit._run_exitfuncs()
+    finally:
+        for stream in (sys.stdout, sys.stderr):
+            with contextlib.suppress(OSError, ValueError):
+                stream.flush()
+        os._exit(130)

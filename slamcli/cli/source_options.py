@@ -18,7 +18,7 @@ from typing import Annotated, Any, TypeVar
 
 import typer
 
-from slamcli.formats.options import DEFAULTS, SourceOptions
+from slamcli.source_options import DEFAULTS, SourceOptions
 
 PANEL = "Input options"
 
