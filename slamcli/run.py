@@ -106,6 +106,19 @@ def _check_mappable(pipeline: str, pipe: Any) -> None:
         )
 
 
+def peak_memory() -> dict[str, float]:
+    """Peak resident memory (MB) of this process so far, and the largest of its finished
+    child processes (a pipeline's side process), as the operating system counts them."""
+    import resource
+    import sys
+
+    # ru_maxrss is in kilobytes on Linux, in bytes on macOS.
+    unit = 1.0 if sys.platform == "darwin" else 1024.0
+    own = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * unit / 2**20
+    children = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss * unit / 2**20
+    return {"peak_rss_mb": round(own, 1), "children_peak_rss_mb": round(children, 1)}
+
+
 def data_loss_error(outcome: RunOutcome) -> DataLossError | None:
     """The error a finished run reports when it skipped frames or salvaged a damaged log
     (exit code 3), or None when nothing was lost. ``run``, ``demo`` and ``batch`` share it."""
@@ -199,6 +212,7 @@ def _run_into(
     # The pipeline's own figures (per-stage ms/frame, loop closures, ...) plus the evaluation.
     metrics: dict[str, Any] = dict(result.metrics)
     metrics["alignment"] = evaluation
+    metrics["memory"] = peak_memory()
     if evaluation == "se2":
         metrics.update(_evaluate_planar(groundtruth, true_landmarks, result, run, timings))
         outputs.append(run.file("report.png"))

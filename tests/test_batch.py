@@ -297,6 +297,8 @@ def test_every_figure_a_run_writes_is_a_known_gate_metric(
     )
     names = flatten_metrics(json.loads((outcome.run_dir / "run.json").read_text()))
     assert "ate.rmse" in names
+    # Peak memory, as the operating system counts it (this process has loaded numpy at least).
+    assert names["memory.peak_rss_mb"] > 50
     unknown = [n for n in names if not known_metric(pipeline, n)]
     assert unknown == []
     for typo in ("ate.rmsee", "fram.lost", "frames.lots", "ms_per_frame.a.b"):

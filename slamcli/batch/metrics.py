@@ -124,6 +124,10 @@ _METRICS: dict[str, set[str]] = {
 """Each pipeline's own numeric metrics besides accuracy and timing."""
 
 
+_MEMORY = {"memory.peak_rss_mb", "memory.children_peak_rss_mb"}
+"""Peak resident memory, every run."""
+
+
 def _accuracy(pipeline: str) -> set[str]:
     from slamcli.pipelines import get_spec
 
@@ -134,6 +138,8 @@ def known_metric(pipeline: str, metric: str) -> bool:
     """Whether a run of ``pipeline`` can hold ``metric`` (given ground truth, for accuracy)."""
     if metric == "ms_per_frame" or metric.startswith("ms_per_frame."):
         return metric.count(".") <= 1
+    if metric in _MEMORY:
+        return True
     if metric.startswith("evaluation."):
         metric = metric[len("evaluation.") :]
     if metric in _accuracy(pipeline) or metric in _METRICS.get(pipeline, set()):
@@ -147,6 +153,7 @@ def known_metrics(pipeline: str) -> list[str]:
     """Every name :func:`known_metric` accepts for ``pipeline`` (for hints), sorted."""
     names: Iterable[str] = (
         {"ms_per_frame"}
+        | _MEMORY
         | _accuracy(pipeline)
         | _METRICS.get(pipeline, set())
         | _FRAMES
