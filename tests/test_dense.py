@@ -195,3 +195,30 @@ def test_volume_budget_follows_the_scene(
     counts = synth_result[0].counts
     # Capacity stays within the growth margin of what the scene uses (plus one frame's blocks).
     assert counts["voxel_blocks"] <= counts["voxel_block_budget"] <= 3 * counts["voxel_blocks"]
+
+
+def test_only_keyframes_keep_images_packed_and_a_rebuild_fuses_them(synth_loop: Path) -> None:
+    """Memory follows the keyframes: every keyframe but the newest keeps its images only
+    packed (a lossless 16-bit depth PNG and a JPEG), they decode to the depth it had, and
+    the rebuild after loop closure fuses exactly the keyframes."""
+    pipe = DenseSlam()
+    with open_source(synth_loop) as source:
+        frames = list(source.frames(("rgbd",)))
+    for frame in frames:
+        pipe.process(frame)
+    kfs = pipe._keyframes
+    assert len(kfs) >= 5
+    assert all(k.packed is not None and k.frame.rgb.size == 0 for k in kfs[:-1])
+    assert kfs[-1].packed is None and kfs[-1].frame.rgb.size > 0
+    # Packed bytes stay far below the arrays they replace.
+    packed = sum(len(d) + len(c) for k in kfs[:-1] for d, c in [k.packed])  # type: ignore[misc]
+    raw = sum(f.rgb.nbytes + f.depth_m.nbytes for f in frames[: len(kfs) - 1])
+    assert packed < 0.5 * raw
+    # The depth comes back as it was, to the 1/5000 m step it was stored in.
+    first = pipe._images(kfs[0])
+    original = pipe._prepare(frames[kfs[0].frame.index])
+    assert np.abs(first.depth - original.depth).max() <= 1.0 / 5000
+    assert first.small is not None and first.rgb.shape == original.rgb.shape
+    result = pipe.finish()
+    assert result.counts["loop_closures_accepted"] >= 1
+    assert result.counts["frames_reintegrated"] == len(kfs)

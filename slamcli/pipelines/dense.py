@@ -238,6 +238,12 @@ class DenseConfig:
         choices=(True, False),
     )
     seed: int = setting(0, help="seeds OpenCV's RNG (PnP RANSAC)", min=0, max=2**31 - 1)
+    threads: int = setting(
+        2,
+        help="1 does everything on one core; 2 decodes the next frames beside tracking and "
+        "fusion (same results either way)",
+        choices=(1, 2),
+    )
 
     def __post_init__(self) -> None:
         # Single values are range-checked where they are read (load_config); what remains is
@@ -285,11 +291,20 @@ class _Frame:
 
 @dataclass
 class _Keyframe:
-    """A keyframe: the frame and its pose when it was made (world_from_cam (4, 4))."""
+    """A keyframe: the frame and its pose when it was made (world_from_cam (4, 4)).
+
+    Once the next keyframe exists, the frame's images are packed (``packed``: the depth as a
+    lossless 16-bit PNG in 1/5000 m steps, the colour as a JPEG) and released from ``frame``:
+    its features stay, for place recognition and PnP, and the images are decoded again when a
+    loop is verified or the volume is rebuilt. ``info_to_previous`` is the (6, 6) information
+    of the odometry edge from the previous keyframe, computed while both images were at hand.
+    """
 
     id: int
     frame: _Frame
     world_from_cam: F64
+    packed: tuple[bytes, bytes] | None = None
+    info_to_previous: F64 | None = None
 
 
 @dataclass
@@ -312,6 +327,8 @@ class DenseSlam:
 
     def __init__(self, config: DenseConfig | None = None) -> None:
         self.config = config or DenseConfig()
+        # With two threads, frames are decoded ahead on a reader thread (see run_pipeline).
+        self.read_ahead = 2 if self.config.threads == 2 else 0
         self._camera: PinholeCamera | None = None
         self._raw_camera: PinholeCamera | None = None
         self._undistort = False
@@ -329,9 +346,10 @@ class DenseSlam:
         self._keyframes: list[_Keyframe] = []
         self._loops: list[_Loop] = []
         self._loop_records: list[dict[str, Any]] = []
-        # Integrated frames, depth in 1/5000 m steps (uint16): kept to rebuild the volume after
-        # loop closure. About 1.5 MB per 640x480 frame.
-        self._integrated: list[tuple[int, NDArray[np.uint16], NDArray[np.uint8]]] = []
+        # Frames fused into the volume. Only keyframes keep their images (packed, about 0.3 MB
+        # each at 640x480), so memory follows the keyframes, not the log: a rebuild after loop
+        # closure fuses the keyframes.
+        self._integrated = 0
         self._counts: dict[str, int] = defaultdict(int)
         self._ms: dict[str, float] = defaultdict(float)
         self._frames = 0
@@ -415,7 +433,7 @@ class DenseSlam:
         counts = dict(self._counts)
         counts.setdefault("frames_lost", 0)
         counts["keyframes"] = len(self._keyframes)
-        counts["frames_integrated"] = len(self._integrated)
+        counts["frames_integrated"] = self._integrated
         counts["loop_closures_accepted"] = sum(r["accepted"] for r in self._loop_records)
         counts["loop_closures_rejected"] = sum(not r["accepted"] for r in self._loop_records)
         counts["voxel_blocks"] = self._volume.size
@@ -533,8 +551,7 @@ class DenseSlam:
             assert self._camera is not None
             self._volume = _Volume(self._o3d, self.config, self._camera, self.config.block_count)
         self._volume.integrate(cur.depth, cur.rgb, pose)
-        depth_u16 = np.rint(cur.depth * _DEPTH_STEPS_PER_M).astype(np.uint16)
-        self._integrated.append((len(self._poses) - 1, depth_u16, cur.rgb))
+        self._integrated += 1
 
     def _wants_keyframe(self, cur: _Frame, pose: F64) -> bool:
         if not self._keyframes:
@@ -547,8 +564,42 @@ class DenseSlam:
 
     def _add_keyframe(self, cur: _Frame, pose: F64) -> None:
         kf = _Keyframe(len(self._keyframes), cur, pose.copy())
+        if self._keyframes:
+            prev = self._keyframes[-1]
+            prev_from_kf = compose(inverse(prev.world_from_cam), kf.world_from_cam)
+            kf.info_to_previous = self._information(kf.frame, prev.frame, prev_from_kf)
+            self._pack(prev)
         self._keyframes.append(kf)
         self._close_loops(kf)
+
+    def _pack(self, kf: _Keyframe) -> None:
+        """Keep ``kf``'s images compressed and release the arrays (see :class:`_Keyframe`)."""
+        import cv2
+
+        if kf.packed is not None:
+            return
+        frame = kf.frame
+        steps = np.rint(frame.depth * _DEPTH_STEPS_PER_M).astype(np.uint16)
+        ok_d, depth_png = cv2.imencode(".png", steps)
+        bgr = cv2.cvtColor(frame.rgb, cv2.COLOR_RGB2BGR)
+        ok_c, colour_jpg = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+        if not (ok_d and ok_c):
+            return
+        kf.packed = (depth_png.tobytes(), colour_jpg.tobytes())
+        kf.frame = replace(frame, rgb=_RELEASED_RGB, depth=_RELEASED_DEPTH, small=None)
+
+    def _images(self, kf: _Keyframe) -> _Frame:
+        """``kf``'s frame with its images (decoded from ``packed`` when they were released)."""
+        import cv2
+
+        if kf.packed is None:
+            return kf.frame
+        depth_png, colour_jpg = kf.packed
+        steps = np.asarray(cv2.imdecode(np.frombuffer(depth_png, np.uint8), cv2.IMREAD_UNCHANGED))
+        depth = steps.astype(np.float32) / np.float32(_DEPTH_STEPS_PER_M)
+        bgr = np.asarray(cv2.imdecode(np.frombuffer(colour_jpg, np.uint8), cv2.IMREAD_COLOR))
+        rgb = np.ascontiguousarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+        return replace(kf.frame, rgb=rgb, depth=depth, small=self._tracking_image(rgb, depth))
 
     def _close_loops(self, kf: _Keyframe) -> None:
         """Find, verify and record loop closures between ``kf`` and earlier keyframes."""
@@ -596,7 +647,8 @@ class DenseSlam:
             graph.nodes.append(reg.PoseGraphNode(kf.world_from_cam))
         for a, b in zip(self._keyframes[:-1], self._keyframes[1:], strict=True):
             a_from_b = compose(inverse(a.world_from_cam), b.world_from_cam)
-            info = self._information(b.frame, a.frame, a_from_b)
+            info = b.info_to_previous
+            assert info is not None
             graph.edges.append(reg.PoseGraphEdge(b.id, a.id, a_from_b, info, uncertain=False))
         for loop in self._loops:
             graph.edges.append(
@@ -637,7 +689,8 @@ class DenseSlam:
         return corrected
 
     def _apply_corrections(self, corrected: F64) -> None:
-        """Move every pose with its keyframe's correction and rebuild the volume."""
+        """Move every pose with its keyframe's correction and rebuild the volume from the
+        keyframes at their corrected poses."""
         old = np.stack([k.world_from_cam for k in self._keyframes])
         # Each pose follows the latest keyframe at or before it.
         kf_frames = np.array([k.frame.index for k in self._keyframes])
@@ -653,11 +706,11 @@ class DenseSlam:
         capacity = math.ceil(self.config.block_growth * self._volume.size)
         self._volume = None
         volume = _Volume(self._o3d, self.config, self._camera, capacity)
-        for pose_index, depth_u16, rgb in self._integrated:
-            depth = depth_u16.astype(np.float32) / np.float32(_DEPTH_STEPS_PER_M)
-            volume.integrate(depth, rgb, self._poses[pose_index])
+        for kf in self._keyframes:
+            frame = self._images(kf)
+            volume.integrate(frame.depth, frame.rgb, kf.world_from_cam)
         self._volume = volume
-        self._counts["frames_reintegrated"] = len(self._integrated)
+        self._counts["frames_reintegrated"] = len(self._keyframes)
 
     # -- registration ------------------------------------------------------------------------
 
@@ -774,13 +827,14 @@ class DenseSlam:
         if old_from_cur is None:
             record["reason"] = f"fewer than {cfg.loop_min_inliers} PnP inliers"
             return record
+        kf_frame, old_frame = self._images(kf), self._images(old)
         odo = self._o3d.t.pipelines.odometry
         assert self._camera is not None
         try:
             result = rgbd_odometry_multi_scale(
                 self._o3d,
-                self._full_image(kf.frame),
-                self._full_image(old.frame),
+                self._full_image(kf_frame),
+                self._full_image(old_frame),
                 self._o3d.core.Tensor(self._camera.K),
                 self._o3d.core.Tensor(old_from_cur),
                 1.0,
@@ -808,7 +862,7 @@ class DenseSlam:
         else:
             record["accepted"] = True
             record["reason"] = "verified"
-            info = self._information(kf.frame, old.frame, refined)
+            info = self._information(kf_frame, old_frame, refined)
             self._loops.append(_Loop(old.id, kf.id, refined, info, record))
         return record
 
@@ -874,6 +928,8 @@ class DenseSlam:
 
 
 _DEPTH_STEPS_PER_M = 5000.0
+_RELEASED_RGB = np.zeros((0, 0, 3), dtype=np.uint8)
+_RELEASED_DEPTH = np.zeros((0, 0), dtype=np.float32)
 
 
 class _Volume:
