@@ -29,6 +29,7 @@ import logging
 import math
 import time
 from collections import defaultdict
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -240,8 +241,8 @@ class DenseConfig:
     seed: int = setting(0, help="seeds OpenCV's RNG (PnP RANSAC)", min=0, max=2**31 - 1)
     threads: int = setting(
         2,
-        help="1 does everything on one core; 2 decodes the next frames beside tracking and "
-        "fusion (same results either way)",
+        help="1 does everything on one core; 2 decodes the next frames and extracts their "
+        "features beside tracking and fusion (same results either way)",
         choices=(1, 2),
     )
 
@@ -354,6 +355,8 @@ class DenseSlam:
         self._ms: dict[str, float] = defaultdict(float)
         self._frames = 0
         self._best_valid_fraction = 0.0
+        self._pool: ThreadPoolExecutor | None = None
+        self._pending: list[Future[_Frame]] = []
 
     # -- the pipeline -------------------------------------------------------------------------
 
@@ -363,14 +366,26 @@ class DenseSlam:
         return {"opencv": self.config.seed}
 
     def process(self, frame: RgbdFrame) -> None:
-        """Track, integrate and maybe keyframe one RGB-D frame."""
+        """Track, integrate and maybe keyframe one RGB-D frame. With two threads, the next
+        frame's images are prepared (depth cleaned, ORB features, tracking image) on a second
+        core while this one is tracked; frames are still tracked in order."""
         # Stage timers nest (the ray cast is part of tracking), so the total is timed on its own.
         with self._timed("total"):
-            self._process(frame)
+            self._check_camera(frame)
+            if self.config.threads == 2:
+                if self._pool is None:
+                    self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="prepare")
+                self._pending.append(self._pool.submit(self._prepare, frame))
+                if len(self._pending) > 1:
+                    self._process(self._pending.pop(0))
+            else:
+                self._process(self._prepare(frame))
 
-    def _process(self, frame: RgbdFrame) -> None:
+    def _process(self, prepared: _Frame | Future[_Frame]) -> None:
         with self._timed("prepare"):
-            cur = self._prepare(frame)
+            cur = prepared.result() if isinstance(prepared, Future) else prepared
+        cur.index = self._frames
+        self._best_valid_fraction = max(self._best_valid_fraction, cur.valid_fraction)
         self._frames += 1
         pose, status = self._track(cur)
         self._counts[status] += 1
@@ -406,6 +421,12 @@ class DenseSlam:
         Raises:
             PipelineError: no frame was read, or none had enough valid depth to build a map.
         """
+        with self._timed("total"):
+            while self._pending:
+                self._process(self._pending.pop(0))
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
         if self._frames == 0:
             raise PipelineError("the dense pipeline received no RGB-D frames")
         if self._volume is None:
@@ -456,10 +477,9 @@ class DenseSlam:
 
     # -- stages -------------------------------------------------------------------------------
 
-    def _prepare(self, frame: RgbdFrame) -> _Frame:
-        """Check and clean the images, extract ORB features and build the tracking image."""
-        import cv2
-
+    def _check_camera(self, frame: RgbdFrame) -> None:
+        """The frame's images and camera agree, and the camera is the first frame's (which
+        sets up the pipeline's camera and tracking scale)."""
         cam = frame.camera
         h, w = frame.depth_m.shape[:2]
         if frame.rgb.shape[:2] != (h, w) or (cam.height, cam.width) != (h, w):
@@ -483,6 +503,14 @@ class DenseSlam:
                 f"frame {frame.name or frame.stamp_ns}: the camera changed mid-sequence",
                 hint="the dense pipeline needs one fixed camera",
             )
+
+    def _prepare(self, frame: RgbdFrame) -> _Frame:
+        """Clean the images, extract ORB features and build the tracking image (no state is
+        changed: it may run on a second thread). ``index`` is set when the frame is tracked."""
+        import cv2
+
+        cfg = self.config
+        cam = frame.camera
         camera = self._camera
         assert camera is not None
         depth = np.nan_to_num(np.asarray(frame.depth_m, dtype=np.float32), nan=0.0, posinf=0.0)
@@ -492,14 +520,13 @@ class DenseSlam:
             depth = undistort_image(cam, depth, nearest=True)
         depth[(depth < cfg.depth_min_m) | (depth > cfg.depth_max_m)] = 0.0
         valid_fraction = float(np.count_nonzero(depth)) / depth.size
-        self._best_valid_fraction = max(self._best_valid_fraction, valid_fraction)
         gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
         orb = cv2.ORB.create(nfeatures=cfg.orb_features)
         kps, found = orb.detectAndCompute(gray, None)
         keypoints = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 2)
         desc = np.zeros((0, 32), dtype=np.uint8) if found is None else np.asarray(found, np.uint8)
         return _Frame(
-            index=self._frames,
+            index=-1,
             stamp_ns=frame.stamp_ns,
             rgb=rgb,
             depth=depth,
