@@ -48,7 +48,7 @@ from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, Strea
 from slamcli.formats.camera import find_camera_file, load_camera_file, resolve_camera
 from slamcli.formats.images import decode_image, read_image_file
 from slamcli.formats.text import iter_data_lines, parse_count, parse_floats
-from slamcli.formats.tum_rgbd import depth_scale_problem
+from slamcli.formats.tum_rgbd import depth_sample_check
 from slamcli.types import ImageFrame, PinholeCamera, ProgressFn, RgbdFrame, Trajectory
 
 log = logging.getLogger(__name__)
@@ -655,16 +655,7 @@ class RedwoodSource(SourceBase):
             if raw is not None:
                 pixels += raw.size
                 values.append(raw[raw > 0])
-        if not values:
-            return None
-        valid = np.concatenate(values)
-        check: dict[str, Any] = {"samples": len(values), "valid_fraction": valid.size / pixels}
-        details["depth_check"] = check
-        if valid.size == 0:
-            return "the sampled depth images hold no readings (all zero)"
-        p5, median, p95 = (float(v) for v in np.percentile(valid, [5, 50, 95]) / self.depth_factor)
-        check.update(median_m=median, p5_m=p5, p95_m=p95)
-        return depth_scale_problem(valid, self.depth_factor)
+        return depth_sample_check(values, pixels, self.depth_factor, details)
 
 
 def _list_images(folder: Path, suffixes: tuple[str, ...]) -> list[str]:

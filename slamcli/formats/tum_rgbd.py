@@ -612,21 +612,30 @@ class TumRgbdSource(SourceBase):
             if raw is not None:
                 pixels += raw.size
                 values.append(raw[raw > 0])
-        if not values:
-            return None
-        valid = np.concatenate(values)
-        check: dict[str, Any] = {"samples": len(values), "valid_fraction": valid.size / pixels}
-        details["depth_check"] = check
-        if valid.size == 0:
-            return "the sampled depth images hold no readings (all zero)"
-        p5, median, p95 = (float(v) for v in np.percentile(valid, [5, 50, 95]) / self.depth_factor)
-        check.update(
-            median_m=median,
-            p5_m=p5,
-            p95_m=p95,
-            plausible_fraction=_plausible_fraction(valid, self.depth_factor),
-        )
-        return depth_scale_problem(valid, self.depth_factor)
+        return depth_sample_check(values, pixels, self.depth_factor, details)
+
+
+def depth_sample_check(
+    values: list[NDArray[Any]], pixels: int, factor: float, details: dict[str, Any]
+) -> str | None:
+    """Record sampled depth statistics in ``details["depth_check"]`` and judge the depth
+    factor. ``values`` are each sampled image's non-zero raw readings, ``pixels`` the pixels
+    sampled in all."""
+    if not values:
+        return None
+    valid = np.concatenate(values)
+    check: dict[str, Any] = {"samples": len(values), "valid_fraction": valid.size / pixels}
+    details["depth_check"] = check
+    if valid.size == 0:
+        return "the sampled depth images hold no readings (all zero)"
+    p5, median, p95 = (float(v) for v in np.percentile(valid, [5, 50, 95]) / factor)
+    check.update(
+        median_m=median,
+        p5_m=p5,
+        p95_m=p95,
+        plausible_fraction=_plausible_fraction(valid, factor),
+    )
+    return depth_scale_problem(valid, factor)
 
 
 def depth_scale_problem(raw: NDArray[Any], factor: float) -> str | None:
