@@ -10,6 +10,7 @@ from hypothesis.extra.numpy import arrays
 
 from slamcli.errors import InputError
 from slamcli.geometry import (
+    blend_poses,
     compose,
     interpolate_poses,
     inverse,
@@ -119,6 +120,17 @@ def test_interpolate_poses_constant_twist() -> None:
     assert valid.tolist() == [False, True, False]
     np.testing.assert_allclose(rotation_angle(out[1]), 0.2, atol=1e-12)
     np.testing.assert_allclose(out[1, :3, 3], 0.25 * xi[:3], atol=1e-12)
+
+
+def test_blend_poses_moves_along_the_geodesic() -> None:
+    a = make_pose(so3_exp([0.1, 0.2, -0.3]), [1.0, 0.0, 2.0])
+    b = make_pose(so3_exp([0.5, -0.1, 0.4]), [0.0, 2.0, 1.0])
+    np.testing.assert_allclose(blend_poses(a, b, 0.0), a, atol=1e-12)
+    np.testing.assert_allclose(blend_poses(a, b, 1.0), b, atol=1e-12)
+    quarter = blend_poses(a, b, 0.25)
+    turn = rotation_angle(np.linalg.inv(a) @ b)
+    np.testing.assert_allclose(rotation_angle(np.linalg.inv(a) @ quarter), 0.25 * turn, atol=1e-12)
+    np.testing.assert_allclose(quarter[:3, 3], [0.75, 0.5, 1.75], atol=1e-12)
 
 
 @pytest.mark.parametrize("with_scale", [False, True])

@@ -14,6 +14,7 @@ from slamcli.geometry.planar import (
     wrap_angle,
 )
 from slamcli.geometry.se3 import (
+    blend_poses,
     compose,
     interpolate_poses,
     inverse,
@@ -31,6 +32,7 @@ from slamcli.geometry.se3 import (
 )
 
 __all__ = [
+    "blend_poses",
     "chi2_quantile",
     "compose",
     "compose_planar",

@@ -196,6 +196,16 @@ def slerp(q0: ArrayLike, q1: ArrayLike, fraction: ArrayLike) -> F64:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
+def blend_poses(a: ArrayLike, b: ArrayLike, fraction: float) -> F64:
+    """The pose ``fraction`` of the way from ``a`` to ``b`` (4, 4): SLERP for the rotation,
+    linear for the translation; 0 gives ``a``, 1 gives ``b``."""
+    pa = np.asarray(a, dtype=np.float64)
+    pb = np.asarray(b, dtype=np.float64)
+    q = slerp(matrix_to_quat_wxyz(pa[:3, :3]), matrix_to_quat_wxyz(pb[:3, :3]), fraction)
+    t = pa[:3, 3] + fraction * (pb[:3, 3] - pa[:3, 3])
+    return make_pose(quat_wxyz_to_matrix(q), t)
+
+
 def interpolate_poses(
     stamps_ns: ArrayLike, world_from_body: ArrayLike, query_ns: ArrayLike
 ) -> tuple[NDArray[np.bool_], F64]:

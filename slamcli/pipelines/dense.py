@@ -1,23 +1,30 @@
-"""Dense RGB-D SLAM: feature-seeded frame-to-model tracking, TSDF fusion and loop closure.
+"""Dense RGB-D SLAM: frame-to-model tracking seeded by the visual tracker, TSDF fusion.
 
-Each frame goes through four stages:
+Each frame goes through these stages:
 
-- ``_track``: ORB features of the previous frame with depth, lifted to 3-D, are matched to the
-  current frame and ``cv2.solvePnPRansac`` gives a pose seed (depth-only trackers under-rotate
-  during fast turns; features do not). The seed is refined with Open3D's multi-scale tensor
-  RGB-D odometry against a ray cast of the TSDF volume at the seed pose (frame-to-model). A
-  refinement that throws (``Singular 6x6 linear system``), finds too few correspondences,
-  jumps beyond the constant-velocity prior or disagrees with the feature seed is not trusted:
-  the frame is registered to the previous frame instead, then by features alone, then by
-  relocalisation against the keyframes; a frame with none of these is lost.
+- ``_track`` (``front_end=visual``, the default): the visual pipeline's tracker
+  (:class:`~slamcli.pipelines.visual.VisualSlam`: motion model, local map, local bundle
+  adjustment) poses the frame; the pose is refined with Open3D's multi-scale tensor RGB-D
+  odometry against a ray cast of the TSDF volume, and the frame's pose is ``model_weight`` of
+  the way from the feature pose to the refined one. The two err differently (features are
+  sharp in rotation, depth in translation), so the blend beats both. A refinement that throws,
+  finds too few correspondences or strays from the feature pose is dropped. Frames the visual
+  tracker cannot pose (no texture, lost) are tracked by the dense tracker alone, which also
+  places each new visual map in the volume's frame.
+- ``_track`` (``front_end=frames``): ORB features of the previous frame, lifted with depth,
+  give a PnP seed; the same refinement follows, then frame-to-frame odometry, features alone
+  or relocalisation against the keyframes when it is not trusted; a frame with none is lost.
 - ``_integrate``: frames with a trusted pose and enough valid depth are fused into an Open3D
   ``VoxelBlockGrid`` (TSDF, weight, colour).
-- ``_add_keyframe`` / ``_close_loops``: every few frames (or after enough motion) a keyframe is
-  kept; earlier keyframes near it in pose and similar in ORB appearance are verified by PnP
-  followed by RGB-D odometry, and accepted loops become uncertain edges of a pose graph.
-- ``_finish``: the pose graph is optimised with Open3D's line-process global optimisation
-  (which prunes false loops), every frame follows its keyframe's correction, and the volume is
-  rebuilt with the corrected poses before the mesh and points are extracted.
+- ``_add_keyframe``: every few frames (or after enough motion) a keyframe keeps its images,
+  packed, for the final rebuild. With ``front_end=frames`` earlier keyframes near it in pose and
+  similar in ORB appearance are verified by PnP and RGB-D odometry as loops.
+- ``finish``: with the visual front end, its loop closure (place recognition, GTSAM pose graph)
+  and final refinement give each frame its final feature pose, which takes the correction the
+  model made when the frame was tracked. With ``front_end=frames``, the keyframe pose graph is
+  optimised with Open3D's line-process global optimisation (which prunes false loops) and every
+  frame follows its keyframe. Either way the volume is rebuilt from the keyframes at their final
+  poses before the mesh and points are extracted.
 
 Every frame with a pose goes into the trajectory; every skipped or recovered frame is counted
 by reason in ``SlamResult.counts``. Open3D objects never leave this module.
@@ -38,10 +45,11 @@ from numpy.typing import NDArray
 
 from slamcli.config import setting
 from slamcli.errors import ConfigError, PipelineError
-from slamcli.geometry import compose, inverse, rotation_angle
+from slamcli.geometry import blend_poses, compose, inverse, rotation_angle
 from slamcli.geometry.camera import undistort_image
 from slamcli.pipelines.rgbd_odometry import rgbd_odometry_multi_scale
 from slamcli.pipelines.timing import StageTimer
+from slamcli.pipelines.visual import VisualConfig, VisualSlam
 from slamcli.types import PinholeCamera, RgbdFrame, SlamResult, Trajectory, TriangleMesh
 from slamcli.vision.features import lift
 from slamcli.vision.matching import match_ratio
@@ -52,6 +60,11 @@ log = logging.getLogger(__name__)
 F64 = NDArray[np.float64]
 
 _METHODS = ("hybrid", "point_to_plane", "intensity")
+# Tracking outcomes whose frames are fused into the volume.
+_TRUSTED = ("tracked_first", "tracked_model", "tracked_visual", "recovered_f2f")
+# While frames are lost, the constant-velocity prediction moves on for this many frames, then
+# waits where it is: a long gap compounded at the last speed would fly off the map.
+_PREDICT_LOST_FRAMES = 5
 
 
 @dataclass(frozen=True)
@@ -159,7 +172,13 @@ class DenseConfig:
     relocalise_keyframes: int = setting(
         8, help="how many of the latest keyframes relocalisation tries", min=1
     )
-    keyframe_every: int = setting(10, help="frames between keyframes at most", min=1)
+    keyframe_every: int = setting(
+        10,
+        help="frames between keyframes at most; with front_end=visual no keyframe is made "
+        "within keyframe_min_m and keyframe_min_deg of one from loop_min_frames or more "
+        "before, so revisits add none",
+        min=1,
+    )
     keyframe_min_m: float = setting(
         0.1, help="motion since the last keyframe that makes a new one", unit="m", gt=0.0
     )
@@ -239,6 +258,21 @@ class DenseConfig:
         choices=(True, False),
     )
     seed: int = setting(0, help="seeds OpenCV's RNG (PnP RANSAC)", min=0, max=2**31 - 1)
+    front_end: str = setting(
+        "visual",
+        help="what gives each frame's pose before the frame-to-model refinement: the visual "
+        "pipeline's tracker (its local map, motion model and local bundle adjustment; loops "
+        "closed by its place recognition and GTSAM pose graph), or ORB PnP against the "
+        "previous frame with the dense pipeline's own loop closure",
+        choices=("visual", "frames"),
+    )
+    model_weight: float = setting(
+        0.25,
+        help="with front_end=visual, the share of the frame-to-model refinement in each pose: 0 "
+        "keeps the visual tracker's pose, 1 takes the refined one",
+        min=0.0,
+        max=1.0,
+    )
     threads: int = setting(
         2,
         help="1 does everything on one core; 2 decodes the next frames and extracts their "
@@ -277,6 +311,8 @@ class _Frame:
         points_cam: (M, 3) float64 keypoints lifted with depth, camera frame; NaN rows where
             the depth is invalid.
         small: Open3D RGB-D image at the tracking scale (colour float32 in [0, 1]).
+        source: the input frame, until the visual front end has tracked it.
+        features: its ORB features for the visual front end, until then.
     """
 
     index: int
@@ -288,6 +324,8 @@ class _Frame:
     descriptors: NDArray[np.uint8]
     points_cam: F64
     small: Any
+    source: RgbdFrame | None = None
+    features: Any = None
 
 
 @dataclass
@@ -342,6 +380,7 @@ class DenseSlam:
         self._frame_of_pose: list[int] = []
         self._previous_pose: F64 | None = None
         self._velocity = np.eye(4)
+        self._lost_run = 0
         self._reference: _Frame | None = None
         self._reference_pose = np.eye(4)
         self._keyframes: list[_Keyframe] = []
@@ -357,6 +396,17 @@ class DenseSlam:
         self._best_valid_fraction = 0.0
         self._pool: ThreadPoolExecutor | None = None
         self._pending: list[Future[_Frame]] = []
+        # front_end=visual: the visual tracker, the volume-from-map transform of each of its
+        # maps, and each pose's tracker pose and map (None where the dense tracker alone
+        # placed the frame).
+        self._visual: VisualSlam | None = None
+        if self.config.front_end == "visual":
+            cfg = self.config
+            self._visual = VisualSlam(VisualConfig(threads=cfg.threads, seed=cfg.seed))
+        self._map_offsets: dict[int, F64] = {}
+        self._seed: tuple[F64, int] | None = None
+        self._seed_of_pose: list[tuple[F64, int] | None] = []
+        self._front_end_result: SlamResult | None = None
 
     # -- the pipeline -------------------------------------------------------------------------
 
@@ -387,21 +437,27 @@ class DenseSlam:
         cur.index = self._frames
         self._best_valid_fraction = max(self._best_valid_fraction, cur.valid_fraction)
         self._frames += 1
+        self._seed = None
         pose, status = self._track(cur)
         self._counts[status] += 1
         if pose is None:
             self._counts["frames_lost"] += 1
-            if self._previous_pose is not None:
+            self._lost_run += 1
+            if self._previous_pose is not None and self._lost_run <= _PREDICT_LOST_FRAMES:
                 self._previous_pose = compose(self._previous_pose, self._velocity)
             return
-        if self._previous_pose is not None:
+        if self._previous_pose is not None and self._lost_run == 0:
             self._velocity = compose(inverse(self._previous_pose), pose)
+        else:
+            self._velocity = np.eye(4)
+        self._lost_run = 0
         self._previous_pose = pose
         self._stamps.append(cur.stamp_ns)
         self._poses.append(pose)
         self._frame_of_pose.append(cur.index)
+        self._seed_of_pose.append(self._seed)
         self._counts["frames_tracked"] += 1
-        trusted = status in ("tracked_model", "tracked_first", "recovered_f2f")
+        trusted = status in _TRUSTED
         depth_ok = cur.valid_fraction >= self.config.min_valid_depth_fraction
         if not depth_ok:
             self._counts["frames_not_integrated_depth"] += 1
@@ -428,8 +484,12 @@ class DenseSlam:
             self._pool.shutdown()
             self._pool = None
         if self._frames == 0:
+            if self._visual is not None:
+                self._visual.close()
             raise PipelineError("the dense pipeline received no RGB-D frames")
         if self._volume is None:
+            if self._visual is not None:
+                self._visual.close()
             raise PipelineError(
                 f"none of the {self._frames} frames had usable depth: at best "
                 f"{100 * self._best_valid_fraction:.1f}% of the pixels read between "
@@ -440,10 +500,13 @@ class DenseSlam:
             )
         finish_start = time.perf_counter()
         with self._timed("optimise"):
-            corrections = self._optimise()
+            corrections = self._optimise() if self._visual is None else self._front_end_poses()
         if corrections is not None:
             with self._timed("reintegrate"):
-                self._apply_corrections(corrections)
+                if self._visual is None:
+                    self._apply_corrections(corrections)
+                else:
+                    self._rebuild(corrections)
         with self._timed("extract"):
             mesh, points, colors = self._volume.extract(self.config.mesh_weight_threshold)
         trajectory = Trajectory(np.array(self._stamps, dtype=np.int64), np.stack(self._poses))
@@ -455,8 +518,14 @@ class DenseSlam:
         counts.setdefault("frames_lost", 0)
         counts["keyframes"] = len(self._keyframes)
         counts["frames_integrated"] = self._integrated
-        counts["loop_closures_accepted"] = sum(r["accepted"] for r in self._loop_records)
-        counts["loop_closures_rejected"] = sum(not r["accepted"] for r in self._loop_records)
+        loop_records = self._loop_records
+        if self._front_end_result is not None:
+            front = self._front_end_result
+            loop_records = front.metrics.get("loop_closures", [])
+            for key in ("keyframes", "maps", "map_merges", "map_points"):
+                counts[f"front_end_{key}"] = int(front.counts.get(key, 0))
+        counts["loop_closures_accepted"] = sum(bool(r["accepted"]) for r in loop_records)
+        counts["loop_closures_rejected"] = sum(not r["accepted"] for r in loop_records)
         counts["voxel_blocks"] = self._volume.size
         counts["voxel_block_budget"] = self._volume.capacity
         counts["voxel_block_growths"] = self._volume.growths
@@ -470,7 +539,7 @@ class DenseSlam:
             mesh=mesh,
             metrics={
                 "ms_per_frame": stages,
-                "loop_closures": self._loop_records,
+                "loop_closures": loop_records,
             },
             counts=counts,
         )
@@ -520,11 +589,19 @@ class DenseSlam:
             depth = undistort_image(cam, depth, nearest=True)
         depth[(depth < cfg.depth_min_m) | (depth > cfg.depth_max_m)] = 0.0
         valid_fraction = float(np.count_nonzero(depth)) / depth.size
-        gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
-        orb = cv2.ORB.create(nfeatures=cfg.orb_features)
-        kps, found = orb.detectAndCompute(gray, None)
-        keypoints = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 2)
-        desc = np.zeros((0, 32), dtype=np.uint8) if found is None else np.asarray(found, np.uint8)
+        features = None
+        if self._visual is not None:
+            # The visual tracker finds its own features (on the raw image); the frame's
+            # ORB keypoints are not used.
+            features = self._visual.extract(frame)
+            keypoints = np.zeros((0, 2), dtype=np.float32)
+            desc = np.zeros((0, 32), dtype=np.uint8)
+        else:
+            gray = cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY)
+            orb = cv2.ORB.create(nfeatures=cfg.orb_features)
+            kps, found = orb.detectAndCompute(gray, None)
+            keypoints = np.array([k.pt for k in kps], dtype=np.float32).reshape(-1, 2)
+            desc = np.zeros((0, 32), np.uint8) if found is None else np.asarray(found, np.uint8)
         return _Frame(
             index=-1,
             stamp_ns=frame.stamp_ns,
@@ -535,10 +612,53 @@ class DenseSlam:
             descriptors=desc,
             points_cam=lift(keypoints, depth, camera),
             small=self._tracking_image(rgb, depth),
+            source=frame if features is not None else None,
+            features=features,
         )
 
     def _track(self, cur: _Frame) -> tuple[F64 | None, str]:
         """World-from-camera pose of ``cur`` (or None when lost) and how it was found."""
+        if self._visual is None:
+            return self._track_frames(cur)
+        return self._track_visual(cur)
+
+    def _track_visual(self, cur: _Frame) -> tuple[F64 | None, str]:
+        """Pose ``cur`` with the visual tracker, refined against the model and blended by
+        ``model_weight``; the dense tracker alone when the visual one has no pose, and for the
+        first frame of each of its maps (which places that map in the volume's frame)."""
+        cfg = self.config
+        assert self._visual is not None and cur.source is not None
+        with self._timed("front_end"):
+            tracked = self._visual.track(cur.source, cur.features)
+        cur.source = cur.features = None
+        if tracked is None:
+            self._counts["front_end_no_pose"] += 1
+            return self._track_frames(cur)
+        online, map_id = tracked
+        offset = self._map_offsets.get(map_id)
+        if offset is None:
+            pose, status = self._track_frames(cur)
+            if pose is not None:
+                self._map_offsets[map_id] = compose(pose, inverse(online))
+                self._seed = (online, map_id)
+            return pose, status
+        self._seed = (online, map_id)
+        seed = compose(offset, online)
+        depth_ok = cur.valid_fraction >= cfg.min_valid_depth_fraction
+        if not (depth_ok and self._volume is not None and cfg.model_weight > 0):
+            return seed, "tracked_visual"
+        with self._timed("track_model"):
+            refined = self._refine_model(cur, seed)
+        if refined is None:
+            return seed, "tracked_visual"
+        if not within(seed, refined, cfg.max_seed_disagreement_m, cfg.max_seed_disagreement_deg):
+            self._counts["rejected_seed_disagreement"] += 1
+            return seed, "tracked_visual"
+        return blend_poses(seed, refined, cfg.model_weight), "tracked_model"
+
+    def _track_frames(self, cur: _Frame) -> tuple[F64 | None, str]:
+        """Pose ``cur`` by PnP against the previous frame, refined against the model (see the
+        module's description)."""
         cfg = self.config
         if self._previous_pose is None:
             return np.eye(4), "tracked_first"
@@ -583,21 +703,42 @@ class DenseSlam:
     def _wants_keyframe(self, cur: _Frame, pose: F64) -> bool:
         if not self._keyframes:
             return True
+        if self._visual is not None and self._near_keyframe(cur, pose):
+            # Keyframes only feed the final rebuild here: a view kept on an earlier pass adds
+            # nothing, so revisiting a mapped room adds no keyframes.
+            return False
         last = self._keyframes[-1]
         if cur.index - last.frame.index >= self.config.keyframe_every:
             return True
         moved_m, turned_deg = pose_change(last.world_from_cam, pose)
         return moved_m >= self.config.keyframe_min_m or turned_deg >= self.config.keyframe_min_deg
 
+    def _near_keyframe(self, cur: _Frame, pose: F64) -> bool:
+        """Whether a keyframe of an earlier pass (``loop_min_frames`` or more before ``cur``)
+        lies within ``keyframe_min_m`` and ``keyframe_min_deg`` of ``pose``."""
+        cfg = self.config
+        earlier = [k for k in self._keyframes if cur.index - k.frame.index >= cfg.loop_min_frames]
+        if not earlier:
+            return False
+        poses = np.stack([k.world_from_cam for k in earlier])
+        near = np.linalg.norm(poses[:, :3, 3] - pose[:3, 3], axis=1) < cfg.keyframe_min_m
+        if not near.any():
+            return False
+        turned = np.degrees(rotation_angle(compose(inverse(poses[near]), pose)))
+        return bool(np.any(turned < cfg.keyframe_min_deg))
+
     def _add_keyframe(self, cur: _Frame, pose: F64) -> None:
         kf = _Keyframe(len(self._keyframes), cur, pose.copy())
         if self._keyframes:
             prev = self._keyframes[-1]
-            prev_from_kf = compose(inverse(prev.world_from_cam), kf.world_from_cam)
-            kf.info_to_previous = self._information(kf.frame, prev.frame, prev_from_kf)
+            if self._visual is None:
+                # The odometry edge of the keyframe pose graph (front_end=frames).
+                prev_from_kf = compose(inverse(prev.world_from_cam), kf.world_from_cam)
+                kf.info_to_previous = self._information(kf.frame, prev.frame, prev_from_kf)
             self._pack(prev)
         self._keyframes.append(kf)
-        self._close_loops(kf)
+        if self._visual is None:
+            self._close_loops(kf)
 
     def _pack(self, kf: _Keyframe) -> None:
         """Keep ``kf``'s images compressed and release the arrays (see :class:`_Keyframe`)."""
@@ -703,15 +844,73 @@ class DenseSlam:
         if not kept:
             return None
         corrected = np.stack([np.asarray(n.pose, dtype=np.float64) for n in graph.nodes])
+        return corrected if self._moved_enough(corrected) else None
+
+    def _moved_enough(self, corrected: F64) -> bool:
+        """Whether the corrected keyframe poses (K, 4, 4) move a keyframe far enough from
+        where it was fused for the volume to be rebuilt."""
         old = np.stack([k.world_from_cam for k in self._keyframes])
         shift = compose(inverse(old), corrected)
         moved_m = float(np.max(np.linalg.norm(shift[:, :3, 3], axis=1)))
         moved_deg = float(np.degrees(np.max(rotation_angle(shift))))
-        log.info("pose graph moved keyframes by up to %.4f m, %.3f deg", moved_m, moved_deg)
-        if (
-            moved_m < self.config.reintegrate_min_shift_m
-            and moved_deg < self.config.reintegrate_min_shift_deg
-        ):
+        log.info("the final poses move keyframes by up to %.4f m, %.3f deg", moved_m, moved_deg)
+        return (
+            moved_m >= self.config.reintegrate_min_shift_m
+            or moved_deg >= self.config.reintegrate_min_shift_deg
+        )
+
+    def _front_end_poses(self) -> F64 | None:
+        """Final poses with the visual front end: each frame the visual tracker placed gets
+        its final visual pose (after loop closure, the pose graph and the last refinement)
+        times the correction the model refinement made to it when it was tracked; the other
+        frames follow the nearest such frame by their tracked motion. The first placed frame
+        keeps its pose. Returns the keyframes' final poses when they moved enough for the
+        volume to be rebuilt, else None."""
+        assert self._visual is not None
+        try:
+            self._front_end_result = front = self._visual.finish()
+        except PipelineError as exc:
+            # No map came out of the visual tracker: the tracked poses stand.
+            log.info("the visual front end made no map (%s); keeping the tracked poses", exc)
+            self._visual.close()
+            self._counts["front_end_no_map"] += 1
+            return None
+        assert front.trajectory is not None
+        final_of = {
+            int(s): p
+            for s, p in zip(
+                front.trajectory.stamps_ns, front.trajectory.world_from_body, strict=True
+            )
+        }
+        tracked = self._poses
+        final: list[F64 | None] = [None] * len(tracked)
+        for i, (stamp, seed) in enumerate(zip(self._stamps, self._seed_of_pose, strict=True)):
+            visual = final_of.get(int(stamp))
+            if seed is None or visual is None:
+                continue
+            online, map_id = seed
+            correction = compose(inverse(compose(self._map_offsets[map_id], online)), tracked[i])
+            final[i] = compose(visual, correction)
+        placed = [i for i, p in enumerate(final) if p is not None]
+        if not placed:
+            return None
+        first = placed[0]
+        anchor = compose(tracked[first], inverse(final[first]))  # type: ignore[arg-type]
+        out = [None if p is None else compose(anchor, p) for p in final]
+        # Frames the visual tracker did not place keep their tracked motion from the nearest
+        # placed frame before them (after them, for frames before the first).
+        for i in range(first + 1, len(out)):
+            if out[i] is None:
+                out[i] = compose(out[i - 1], compose(inverse(tracked[i - 1]), tracked[i]))  # type: ignore[arg-type]
+        for i in range(first - 1, -1, -1):
+            out[i] = compose(out[i + 1], compose(inverse(tracked[i + 1]), tracked[i]))  # type: ignore[arg-type]
+        self._counts["frames_placed_by_front_end"] = len(placed)
+        self._poses = [p for p in out if p is not None]
+        if not self._keyframes:
+            return None
+        index_of = {f: k for k, f in enumerate(self._frame_of_pose)}
+        corrected = np.stack([self._poses[index_of[kf.frame.index]] for kf in self._keyframes])
+        if not self._moved_enough(corrected):
             return None
         return corrected
 
@@ -724,6 +923,10 @@ class DenseSlam:
         owner = np.clip(np.searchsorted(kf_frames, self._frame_of_pose, side="right") - 1, 0, None)
         delta = compose(corrected, inverse(old))
         self._poses = list(compose(delta[owner], np.stack(self._poses)))
+        self._rebuild(corrected)
+
+    def _rebuild(self, corrected: F64) -> None:
+        """Rebuild the volume from the keyframes at their corrected poses (K, 4, 4)."""
         for kf, pose in zip(self._keyframes, corrected, strict=True):
             kf.world_from_cam = pose
         assert self._camera is not None

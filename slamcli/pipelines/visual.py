@@ -242,15 +242,16 @@ class _Frame:
 @dataclass
 class _FrameRecord:
     """What the trajectory needs of a tracked frame: its pose relative to its reference
-    keyframe, and the points it matched (for the final re-estimation)."""
+    keyframe, and the points it matched (for the final re-estimation). One is kept per frame
+    for the whole run, so the matches are kept in 32 bits (20 bytes a point, not 40)."""
 
     stamp_ns: int
     kf: int
     cam_from_kf: F64
-    kp: F64
-    sigma: F64
-    depth: F64
-    pids: I64
+    kp: NDArray[np.float32]
+    sigma: NDArray[np.float32]
+    depth: NDArray[np.float32]
+    pids: NDArray[np.int32]
     state: str
 
 
@@ -375,6 +376,35 @@ class VisualSlam:
             self._side.close()
         self._ms["total"] += (time.perf_counter() - start) * 1e3
         return self._result(main, trajectory)
+
+    # -- as another pipeline's front end ------------------------------------------------------
+
+    def extract(self, frame: RgbdFrame | ImageFrame) -> Features:
+        """ORB features of ``frame`` for :meth:`track` (no state is changed: it may run on
+        another thread)."""
+        return self._extract(frame)
+
+    def track(self, frame: RgbdFrame | ImageFrame, features: Features) -> tuple[F64, int] | None:
+        """Track ``frame`` now, without the queue of :meth:`process`: its world_from_camera
+        pose as tracked (in the frame of its map) and that map's id, or None while the map is
+        initialising or the frame is lost. :meth:`finish` still gives the final trajectory."""
+        if self.config.threads == 2:
+            self._side.start()
+        before = len(self._records)
+        self._track_frame(frame, features)
+        if len(self._records) == before:
+            return None
+        rec = self._records[-1]
+        kf = self.map.keyframes[rec.kf]
+        return inverse(rec.cam_from_kf @ kf.cam_from_world), int(kf.map_id)
+
+    def close(self) -> None:
+        """Stop the side process and the feature thread (after an error; :meth:`finish` stops
+        them itself)."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None
+        self._side.close()
 
     # -- frames ------------------------------------------------------------------------------
 
@@ -766,10 +796,10 @@ class VisualSlam:
                 cur.stamp_ns,
                 self._ref_kf.id,
                 cur.cam_from_world @ inverse(self._ref_kf.cam_from_world),
-                cur.keypoints[rows],
-                self.map.sigma[cur.features.octaves[rows]],
-                cur.depth[rows],
-                cur.point_ids[rows],
+                cur.keypoints[rows].astype(np.float32),
+                self.map.sigma[cur.features.octaves[rows]].astype(np.float32),
+                cur.depth[rows].astype(np.float32),
+                cur.point_ids[rows].astype(np.int32),
                 state,
             )
         )
@@ -1747,10 +1777,10 @@ class VisualSlam:
                     jobs.append(
                         (
                             pose,
-                            rec.kp[alive],
+                            rec.kp[alive].astype(np.float64),
                             self.map.pos[rec.pids[alive]],
-                            rec.sigma[alive],
-                            rec.depth[alive],
+                            rec.sigma[alive].astype(np.float64),
+                            rec.depth[alive].astype(np.float64),
                         )
                     )
             stamps.append(rec.stamp_ns)
