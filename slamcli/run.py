@@ -384,7 +384,7 @@ def _write_products(run: RunDir, result: SlamResult, glb: bool) -> list[Path]:
 
             written.append(write_glb(run.output("mesh.glb"), result.mesh))
     if result.pose_graph is not None and len(result.pose_graph[0]):
-        from slamcli.pose_graph import save_g2o
+        from slamcli.graphs.pose_graph import save_g2o
 
         poses, edges = result.pose_graph
         written.append(save_g2o(run.output("graph.g2o"), poses, edges, fixed=(0,)))

@@ -267,6 +267,6 @@ class SlamResult:
     grid: OccupancyGrid | None = None
     pose_graph: tuple[NDArray[np.float64], list[Any]] | None = None
     """The final pose graph, for other tools: (N, 4, 4) world_from_node poses and
-    :class:`slamcli.pose_graph.Edge` edges between their indices (written as graph.g2o)."""
+    :class:`slamcli.graphs.pose_graph.Edge` edges between their indices (written as graph.g2o)."""
     metrics: dict[str, Any] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)

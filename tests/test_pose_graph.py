@@ -11,7 +11,7 @@ from conftest import shared_path
 
 from slamcli.formats.g2o import PoseGraph, read_g2o, write_g2o, write_g2o_se3
 from slamcli.geometry.se3 import compose, inverse, make_pose, se3_exp, so3_exp
-from slamcli.pose_graph import (
+from slamcli.graphs.pose_graph import (
     Edge,
     from_g2o,
     graph_error,

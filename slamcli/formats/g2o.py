@@ -211,7 +211,7 @@ def write_g2o_se3(
         measurements: (E, 4, 4) float64 ``from_from_to`` relative transforms.
         information: (E, 6, 6) float64 in g2o's own convention (translation first, rotation
             measured by the quaternion's vector part), or None for identity.
-            :func:`slamcli.pose_graph.save_g2o` converts from GTSAM's order.
+            :func:`slamcli.graphs.pose_graph.save_g2o` converts from GTSAM's order.
         vertex_ids: (V,) ids of the vertices; default ``0..V-1``.
         fixed: ids written as ``FIX`` lines.
     """

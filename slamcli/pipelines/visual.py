@@ -1478,7 +1478,7 @@ class VisualSlam:
         """ORB-SLAM's monocular CorrectLoop: kf and its neighbours move to the loop's
         similarity, their points with them; the essential graph is optimised on Sim(3)
         (GTSAM), every keyframe's points follow its scale, then a global bundle adjustment."""
-        from slamcli.pose_graph import Edge, optimize_sim3
+        from slamcli.graphs.pose_graph import Edge, optimize_sim3
 
         self._settle_ba()
         map_id = cand.map_id
@@ -1671,7 +1671,7 @@ class VisualSlam:
     def _close_loop(self, kf: Keyframe, cand: Keyframe, corrected: F64) -> None:
         """ORB-SLAM's CorrectLoop on SE(3): move kf and its neighbours to the loop's pose,
         fuse the duplicated points, optimise the essential graph and adjust globally."""
-        from slamcli.pose_graph import Edge, optimize_se3
+        from slamcli.graphs.pose_graph import Edge, optimize_se3
 
         self._settle_ba()
         map_id = cand.map_id
@@ -1837,7 +1837,7 @@ class VisualSlam:
         """The final essential graph of keyframes ``kfs`` (edges between their indices):
         spanning tree, strong covisibility (100 shared points) and loop edges, measured by
         the final poses."""
-        from slamcli.pose_graph import Edge
+        from slamcli.graphs.pose_graph import Edge
 
         index = {k.id: i for i, k in enumerate(kfs)}
         edges: list[Edge] = []
