@@ -103,31 +103,57 @@ def landmarks(
         120.0, "--duration", min=0.05, help="Driving time in seconds (one lap takes 52 s)."
     ),
     force: bool = typer.Option(False, "--force", help="Write into a non-empty OUT folder."),
+    robots: int = typer.Option(
+        1,
+        "--robots",
+        min=1,
+        max=5,
+        help="Robots driving the field at once; 2-5 write an MRCLAM folder (RobotN_*.dat).",
+    ),
 ) -> None:
-    """Simulate a robot driving laps among landmarks, for EKF-SLAM.
+    """Simulate robots driving laps among landmarks, for EKF-SLAM and map merging.
 
-    Writes odometry.csv (t,v,omega), measurements.csv (t,id,range,bearing), groundtruth.tum,
-    landmarks.csv (id,x,y) and world.json (noise, sensor limits, seed). Odometry has white
-    noise and a constant scale error; observations are range-bearing within 6 m and a 180-degree
-    field of view.
+    One robot (the default) writes odometry.csv (t,v,omega), measurements.csv
+    (t,id,range,bearing), groundtruth.tum, landmarks.csv (id,x,y) and world.json (noise, sensor
+    limits, seed). Odometry has white noise and a constant scale error; observations are
+    range-bearing within 6 m and a 180-degree field of view.
+
+    With --robots N (2-5) the robots start spread around the loop, robots 2 and 4 driving it
+    clockwise, and the folder is MRCLAM-shaped: Barcodes.dat, Landmark_Groundtruth.dat and per
+    robot RobotK_Odometry.dat, RobotK_Measurement.dat (landmarks and the other robots in view)
+    and RobotK_Groundtruth.dat, plus world.json; run each robot with
+    'slamcli run ekf OUT --robot K' and join the runs with 'slamcli merge'.
 
     Example: [bold]slamcli synth landmarks runs/world --landmarks 60 --duration 60 --seed 3[/]
+
+    Example: [bold]slamcli synth landmarks runs/world3 --robots 3 --duration 30 --seed 1[/]
     """
     from slamcli.synth.landmarks import generate_landmark_world
 
-    with render.progress("writing", 5) as progress:
+    total = 5 if robots == 1 else 3 + 3 * robots
+    with render.progress("writing", total) as progress:
         summary = generate_landmark_world(
-            out, seed=seed, landmarks=count, duration_s=duration, force=force, progress=progress
+            out,
+            seed=seed,
+            landmarks=count,
+            duration_s=duration,
+            force=force,
+            progress=progress,
+            robots=robots,
         )
-    render.key_values(
-        "World",
-        {
-            "landmarks": summary["landmarks"],
-            "drive": f"{summary['duration_s']:.1f} s, {summary['path_length_m']:.1f} m, "
-            f"{summary['laps']:.2f} laps",
-            "odometry": f"{summary['odometry']} records",
-            "observations": summary["measurements"],
-            "seed": seed,
-        },
-    )
+    rows: dict[str, object] = {
+        "landmarks": summary["landmarks"],
+        "drive": f"{summary['duration_s']:.1f} s, {summary['path_length_m']:.1f} m, "
+        f"{summary['laps']:.2f} laps",
+        "odometry": f"{summary['odometry']} records",
+        "observations": summary["measurements"],
+        "seed": seed,
+    }
+    if robots > 1:
+        rows["drive"] = f"{summary['duration_s']:.1f} s, {summary['laps']:.2f} laps each"
+        rows["robots"] = robots
+        rows["robot sightings"] = summary["sightings"]
+    render.key_values("World", rows)
     render.written(summary["files"])
+    if robots > 1:
+        render.note(f"run a robot with: slamcli run ekf {out} --robot 1 --out runs/robot1")

@@ -28,6 +28,23 @@ Folder layout (times in seconds with 6 decimals, starting at 1700000000.000000):
 Measurement stamps coincide with odometry stamps (every ``odometry_hz / measurement_hz``-th
 one), and the pose in groundtruth.tum at that stamp is the pose the observation was taken
 from.
+
+Several robots (:func:`simulate_multi_robot_world`, ``robots`` 2 to 5) drive the same loop
+through the same landmark field at the same time, from start points spread around the lap,
+robots 2 and 4 clockwise. They are written as an MRCLAM folder that
+:class:`~slamcli.formats.landmarks.MrclamSource` reads (whitespace-separated, ``#`` comments,
+the same stamps as above)::
+
+    Barcodes.dat                 subject barcode   robots 1..N, landmark i is subject i + 6;
+                                                   each barcode equals its subject
+    Landmark_Groundtruth.dat     subject x y x_std y_std   true positions, std-devs 0
+    RobotK_Odometry.dat          t v omega
+    RobotK_Measurement.dat       t barcode range bearing   landmarks and other robots (their
+                                                           centres) in range and view, sorted
+                                                           by t then barcode
+    RobotK_Groundtruth.dat       t x y theta       true poses, theta in (-pi, pi]
+    world.json                   seed, sensor, and per robot its start pose, direction,
+                                 odometry scale factors and counts
 """
 
 from __future__ import annotations
@@ -43,6 +60,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError
+from slamcli.formats.landmarks import MRCLAM_ROBOT_SUBJECTS
 from slamcli.formats.text import format_stamp
 from slamcli.formats.trajectory import tum_lines
 from slamcli.geometry import integrate_unicycle, make_pose, so3_exp
@@ -239,32 +257,199 @@ def simulate_landmark_world(
     white = rng_odo.normal(0.0, [sensor.v_sigma, sensor.omega_sigma], controls.shape)
     odometry = controls * scale + white
 
-    every = round(sensor.odometry_hz / sensor.measurement_hz)
-    at = np.arange(0, len(poses), every)
-    rel = marks[None, :, :] - poses[at, None, :2]
-    true_range = np.linalg.norm(rel, axis=2)
-    true_bearing = _wrap(np.arctan2(rel[..., 1], rel[..., 0]) - poses[at, None, 2])
-    visible = (true_range <= sensor.max_range) & (np.abs(true_bearing) <= sensor.fov / 2)
-    detected = rng_meas.uniform(size=visible.shape) < sensor.detection_prob
-    row, ids = np.nonzero(visible & detected)
-    ranges = true_range[row, ids] + rng_meas.normal(0.0, sensor.range_sigma, row.size)
-    bearings = _wrap(true_bearing[row, ids] + rng_meas.normal(0.0, sensor.bearing_sigma, row.size))
-
-    stamps = EPOCH_NS + np.rint(np.arange(len(poses)) * dt * 1e6).astype(np.int64) * 1000
+    at = _measurement_steps(len(poses), sensor)
+    index, ids, ranges, bearings = _observe(poses, at, marks[None], sensor, rng_meas)
     return LandmarkWorld(
-        stamps_ns=stamps,
+        stamps_ns=_stamps(len(poses), dt),
         poses=poses,
         controls=controls,
         odometry=odometry,
         landmarks=marks,
-        meas_index=at[row].astype(np.int64),
-        meas_ids=ids.astype(np.int64),
-        meas_range=np.maximum(ranges, 0.0),
+        meas_index=index,
+        meas_ids=ids,
+        meas_range=ranges,
         meas_bearing=bearings,
         odometry_scale=scale,
         sensor=sensor,
         seed=seed,
     )
+
+
+def _stamps(count: int, dt: float) -> NDArray[np.int64]:
+    """(count,) int64 stamps ``dt`` seconds apart from :data:`EPOCH_NS`, whole microseconds."""
+    return EPOCH_NS + np.rint(np.arange(count) * dt * 1e6).astype(np.int64) * 1000
+
+
+def _measurement_steps(count: int, sensor: LandmarkSensor) -> NDArray[np.int64]:
+    """Indices of the poses observations are taken from: every ``odometry/measurement``-th."""
+    return np.arange(0, count, round(sensor.odometry_hz / sensor.measurement_hz))
+
+
+def _observe(
+    poses: F64,
+    at: NDArray[np.int64],
+    points: F64,
+    sensor: LandmarkSensor,
+    rng: np.random.Generator,
+) -> tuple[NDArray[np.int64], NDArray[np.int64], F64, F64]:
+    """Range-bearing observations of points from ``poses[at]``.
+
+    Args:
+        poses: (K, 3) x, y (m), heading (rad).
+        at: (T,) int64 indices into ``poses`` of the observing poses.
+        points: (1 or T, P, 2) observed positions, m: fixed (landmarks) or one row per stamp
+            (other robots).
+        sensor: range, field of view, detection probability and noise.
+        rng: draws detections, then range noise, then bearing noise.
+
+    Returns:
+        (M,) pose index, (M,) point index, (M,) range (m, >= 0), (M,) bearing (rad), in the
+        order stamp then point.
+    """
+    rel = points - poses[at, None, :2]
+    true_range = np.linalg.norm(rel, axis=2)
+    true_bearing = _wrap(np.arctan2(rel[..., 1], rel[..., 0]) - poses[at, None, 2])
+    visible = (true_range <= sensor.max_range) & (np.abs(true_bearing) <= sensor.fov / 2)
+    detected = rng.uniform(size=visible.shape) < sensor.detection_prob
+    row, ids = np.nonzero(visible & detected)
+    ranges = true_range[row, ids] + rng.normal(0.0, sensor.range_sigma, row.size)
+    bearings = _wrap(true_bearing[row, ids] + rng.normal(0.0, sensor.bearing_sigma, row.size))
+    return at[row].astype(np.int64), ids.astype(np.int64), np.maximum(ranges, 0.0), bearings
+
+
+@dataclass(frozen=True)
+class Sightings:
+    """One robot's observations of the other robots.
+
+    Attributes:
+        index: (S,) int64 index into the observer's ``stamps_ns``.
+        robot: (S,) int64 number (1-based) of the robot seen.
+        range: (S,) metres to the seen robot's centre.
+        bearing: (S,) radians in (-pi, pi], counter-clockwise from the observer's heading.
+    """
+
+    index: NDArray[np.int64]
+    robot: NDArray[np.int64]
+    range: F64
+    bearing: F64
+
+
+@dataclass(frozen=True)
+class MultiRobotWorld:
+    """Several robots driving the loop of one landmark field at the same time, in memory.
+
+    Attributes:
+        robots: one :class:`LandmarkWorld` per robot (robot ``k + 1`` is ``robots[k]``), all
+            with the same stamps and landmarks; ``meas_ids`` index the landmarks.
+        sightings: per robot, its observations of the others.
+        clockwise: (R,) bool, whether each robot drives the loop clockwise.
+        start_fraction: (R,) float64 where along the lap each robot starts, in [0, 1).
+        seed: the seed used.
+    """
+
+    robots: tuple[LandmarkWorld, ...]
+    sightings: tuple[Sightings, ...]
+    clockwise: NDArray[np.bool_]
+    start_fraction: F64
+    seed: int
+
+
+MAX_ROBOTS = len(MRCLAM_ROBOT_SUBJECTS)
+"""MRCLAM folders number robots 1-5; subjects above them are landmarks."""
+
+LANDMARK_SUBJECT0 = MAX_ROBOTS + 1
+"""MRCLAM subject (and barcode) of landmark 0 in a multi-robot world; landmark i is i + 6."""
+
+
+def simulate_multi_robot_world(
+    seed: int = 0,
+    robots: int = 2,
+    landmarks: int = 40,
+    duration_s: float = 120.0,
+    sensor: LandmarkSensor | None = None,
+) -> MultiRobotWorld:
+    """Simulate ``robots`` robots driving the loop of one landmark field at the same time.
+
+    The field is the one :func:`simulate_landmark_world` places for the same seed. Robot ``k``
+    (0-based) starts at lap fraction ``(k + u) / robots`` with ``u ~ U[0, 0.5)`` drawn from the
+    seed, and robots 2 and 4 drive the loop clockwise (the same arcs, reversed), so robots meet
+    and see each other. Each robot has its own odometry scale errors and noise. At every
+    measurement stamp a robot observes the landmarks and the other robots (their centres) inside
+    the sensor's range and field of view, with the same detection probability and noise.
+
+    Args:
+        seed: seeds landmark placement, start points, odometry errors and observation noise.
+        robots: number of robots, 1 to :data:`MAX_ROBOTS`.
+        landmarks, duration_s, sensor: as for :func:`simulate_landmark_world`.
+    """
+    sensor = sensor or LandmarkSensor()
+    _check(landmarks, duration_s, sensor)
+    if not 1 <= robots <= MAX_ROBOTS:
+        raise ConfigError(f"robots: expected 1 to {MAX_ROBOTS}, got {robots}")
+    dt = 1.0 / sensor.odometry_hz
+    steps = round(duration_s * sensor.odometry_hz)
+    lap = _lap_controls(sensor)
+    start = np.array(
+        [-_STRAIGHT_X_M / 2, -_STRAIGHT_Y_M / 2 - sensor.speed * _TURN_S * 2 / np.pi, 0.0]
+    )
+    lap_poses = integrate_unicycle(start, lap, dt)
+    marks = _place_landmarks(np.random.default_rng([seed, 0]), lap_poses[:, :2], landmarks)
+    fraction = (np.arange(robots) + np.random.default_rng([seed, 3]).uniform(0, 0.5, robots)) / (
+        robots
+    )
+    clockwise = np.arange(robots) % 2 == 1
+    n_lap = len(lap)
+    at = _measurement_steps(steps + 1, sensor)
+    stamps = _stamps(steps + 1, dt)
+    paths, controls_all = [], []
+    for k in range(robots):
+        o = round(fraction[k] * n_lap) % n_lap
+        if clockwise[k]:
+            # Driving an arc backwards with the heading turned round retraces it: the control
+            # that led into lap pose o, with its turn rate negated, leads back out of it.
+            seq = np.roll(lap[::-1] * [1.0, -1.0], -(n_lap - o), axis=0)
+            p0 = lap_poses[o] + [0.0, 0.0, np.pi]
+        else:
+            seq = np.roll(lap, -o, axis=0)
+            p0 = lap_poses[o]
+        controls = np.tile(seq, (steps // n_lap + 1, 1))[:steps]
+        controls_all.append(controls)
+        paths.append(integrate_unicycle(p0, controls, dt))
+    positions = np.stack([p[:, :2] for p in paths])
+    worlds, sightings = [], []
+    for k in range(robots):
+        rng_odo = np.random.default_rng([seed, 1, k])
+        scale = 1.0 + rng_odo.normal(0.0, [sensor.v_bias_sigma, sensor.omega_bias_sigma])
+        white = rng_odo.normal(0.0, [sensor.v_sigma, sensor.omega_sigma], controls_all[k].shape)
+        index, ids, ranges, bearings = _observe(
+            paths[k], at, marks[None], sensor, np.random.default_rng([seed, 2, k])
+        )
+        worlds.append(
+            LandmarkWorld(
+                stamps_ns=stamps,
+                poses=paths[k],
+                controls=controls_all[k],
+                odometry=controls_all[k] * scale + white,
+                landmarks=marks,
+                meas_index=index,
+                meas_ids=ids,
+                meas_range=ranges,
+                meas_bearing=bearings,
+                odometry_scale=scale,
+                sensor=sensor,
+                seed=seed,
+            )
+        )
+        others = np.delete(np.arange(robots), k)
+        s_index, seen, s_range, s_bearing = _observe(
+            paths[k],
+            at,
+            positions[others][:, at].transpose(1, 0, 2),
+            sensor,
+            np.random.default_rng([seed, 4, k]),
+        )
+        sightings.append(Sightings(s_index, others[seen] + 1, s_range, s_bearing))
+    return MultiRobotWorld(tuple(worlds), tuple(sightings), clockwise, fraction, seed)
 
 
 def _check(landmarks: int, duration_s: float, sensor: LandmarkSensor) -> None:
@@ -291,19 +476,28 @@ def generate_landmark_world(
     sensor: LandmarkSensor | None = None,
     force: bool = False,
     progress: ProgressFn | None = None,
+    robots: int = 1,
 ) -> dict[str, Any]:
-    """Simulate a run and write it into ``out`` (layout in the module docstring).
+    """Simulate a run and write it into ``out`` (layouts in the module docstring).
 
     Args:
         out: output folder; must be empty or absent unless ``force``.
         seed, landmarks, duration_s, sensor: as for :func:`simulate_landmark_world`.
         force: replace a non-empty folder (once the new one is complete).
-        progress: called as ``progress(done, 5)`` after each file.
+        progress: called as ``progress(done, total)`` after each file.
+        robots: 1 writes the single-robot folder; 2 to :data:`MAX_ROBOTS` write an MRCLAM
+            folder of :func:`simulate_multi_robot_world`.
 
     Returns:
         Summary: ``seed``, ``landmarks``, ``duration_s``, ``odometry`` (rows),
-        ``measurements`` (rows), ``path_length_m``, ``laps``, ``out`` and ``files``.
+        ``measurements`` (rows), ``path_length_m``, ``laps``, ``out`` and ``files``; with
+        several robots ``robots``, ``sightings`` (rows) and ``per_robot`` (a summary each),
+        odometry, measurements and path length summed over the robots.
     """
+    if robots != 1:
+        return _generate_multi_robot(
+            out, seed, landmarks, duration_s, sensor, force, progress, robots
+        )
     # Staged and renamed into place at the end: checked before simulating, never half-written.
     with RunDir(out, force=force) as run:
         world = simulate_landmark_world(seed, landmarks, duration_s, sensor)
@@ -372,3 +566,149 @@ def _summary(world: LandmarkWorld) -> dict[str, Any]:
         "path_length_m": world.trajectory().path_length(),
         "laps": len(world.controls) / lap_steps,
     }
+
+
+_MRCLAM_HEADER = "# slamcli synth landmarks --robots {robots}, seed {seed}\n# {what}\n"
+
+
+def _generate_multi_robot(
+    out: str | Path,
+    seed: int,
+    landmarks: int,
+    duration_s: float,
+    sensor: LandmarkSensor | None,
+    force: bool,
+    progress: ProgressFn | None,
+    robots: int,
+) -> dict[str, Any]:
+    """Write :func:`simulate_multi_robot_world` as an MRCLAM folder (module docstring)."""
+    if not 1 <= robots <= MAX_ROBOTS:
+        raise ConfigError(
+            f"robots: expected 1 to {MAX_ROBOTS}, got {robots}",
+            hint=f"MRCLAM folders number their robots 1 to {MAX_ROBOTS}",
+        )
+    with RunDir(out, force=force) as run:
+        world = simulate_multi_robot_world(seed, robots, landmarks, duration_s, sensor)
+        total = 3 + 3 * robots
+        count = 0
+
+        def write(name: str, what: str, rows: list[str]) -> Path:
+            nonlocal count
+            head = _MRCLAM_HEADER.format(robots=robots, seed=seed, what=what)
+            path = run.write_text(name, head + "".join(r + "\n" for r in rows))
+            count += 1
+            if progress is not None:
+                progress(count, total)
+            return path
+
+        marks = world.robots[0].landmarks
+        subjects = list(range(1, robots + 1)) + [LANDMARK_SUBJECT0 + i for i in range(len(marks))]
+        files = [
+            write("Barcodes.dat", "Subject #    Barcode #", [f"{s}\t{s}" for s in subjects]),
+            write(
+                "Landmark_Groundtruth.dat",
+                "Subject #    x [m]    y [m]    x std-dev [m]    y std-dev [m]",
+                [
+                    f"{LANDMARK_SUBJECT0 + i}\t{x:.6f}\t{y:.6f}\t0.000000\t0.000000"
+                    for i, (x, y) in enumerate(marks)
+                ],
+            ),
+        ]
+        per_robot = []
+        for k, (w, seen) in enumerate(zip(world.robots, world.sightings, strict=True)):
+            number = k + 1
+            stamps = [format_stamp(t, 6) for t in w.stamps_ns]
+            files.append(
+                write(
+                    f"Robot{number}_Odometry.dat",
+                    "Time [s]    forward velocity [m/s]    angular velocity [rad/s]",
+                    [f"{stamps[i]}\t{v:.6f}\t{om:.6f}" for i, (v, om) in enumerate(w.odometry)],
+                )
+            )
+            index = np.concatenate([w.meas_index, seen.index])
+            barcode = np.concatenate([w.meas_ids + LANDMARK_SUBJECT0, seen.robot])
+            rng = np.concatenate([w.meas_range, seen.range])
+            bearing = np.concatenate([w.meas_bearing, seen.bearing])
+            order = np.lexsort((barcode, index))
+            files.append(
+                write(
+                    f"Robot{number}_Measurement.dat",
+                    "Time [s]    Subject #    range [m]    bearing [rad]",
+                    [
+                        f"{stamps[index[i]]}\t{barcode[i]}\t{rng[i]:.6f}\t{bearing[i]:.6f}"
+                        for i in order.tolist()
+                    ],
+                )
+            )
+            files.append(
+                write(
+                    f"Robot{number}_Groundtruth.dat",
+                    "Time [s]    x [m]    y [m]    orientation [rad]",
+                    [
+                        f"{stamps[i]}\t{x:.6f}\t{y:.6f}\t{th:.6f}"
+                        for i, (x, y, th) in enumerate(
+                            np.column_stack([w.poses[:, :2], _wrap(w.poses[:, 2])])
+                        )
+                    ],
+                )
+            )
+            summary = _summary(w)
+            per_robot.append(
+                {
+                    "robot": number,
+                    "start_pose": [float(v) for v in w.poses[0, :2]]
+                    + [float(_wrap(w.poses[:1, 2])[0])],
+                    "start_lap_fraction": float(world.start_fraction[k]),
+                    "clockwise": bool(world.clockwise[k]),
+                    "odometry_scale": {
+                        "v": float(w.odometry_scale[0]),
+                        "omega": float(w.odometry_scale[1]),
+                    },
+                    "odometry": summary["odometry"],
+                    "measurements": summary["measurements"],
+                    "sightings": len(seen.index),
+                    "sightings_of": {
+                        str(r): int(c)
+                        for r, c in zip(*np.unique(seen.robot, return_counts=True), strict=True)
+                    },
+                    "path_length_m": summary["path_length_m"],
+                }
+            )
+        first = world.robots[0]
+        meta = {
+            "format": "slamcli-landmarks-mrclam",
+            "format_version": 1,
+            "seed": seed,
+            "robots": robots,
+            "landmarks": landmarks,
+            "duration_s": duration_s,
+            "start_stamp": format_stamp(int(first.stamps_ns[0]), 6),
+            "sensor": asdict(first.sensor),
+            "subjects": {
+                "robots": f"1-{robots}",
+                "landmarks": f"{LANDMARK_SUBJECT0}-{LANDMARK_SUBJECT0 + len(marks) - 1}",
+                "barcode": "equal to the subject",
+            },
+            "motion_model": "unicycle, exact arc integration of piecewise-constant controls",
+            "per_robot": per_robot,
+        }
+        files.append(run.write_text("world.json", json.dumps(meta, indent=2) + "\n"))
+        count += 1
+        if progress is not None:
+            progress(count, total)
+        result: dict[str, Any] = {
+            "seed": seed,
+            "robots": robots,
+            "landmarks": landmarks,
+            "duration_s": len(first.controls) / first.sensor.odometry_hz,
+            "odometry": sum(r["odometry"] for r in per_robot),
+            "measurements": sum(r["measurements"] for r in per_robot),
+            "sightings": sum(r["sightings"] for r in per_robot),
+            "path_length_m": sum(r["path_length_m"] for r in per_robot),
+            "laps": len(first.controls) / len(_lap_controls(first.sensor)),
+            "per_robot": per_robot,
+        }
+        result["out"] = str(run.path)
+        result["files"] = [str(p) for p in files]
+    log.info("wrote a %d-robot, %d-landmark MRCLAM folder into %s", robots, landmarks, run.path)
+    return result
