@@ -42,6 +42,7 @@ ORDER = [
     "eval",
     "map build",
     "map show",
+    "graph optimize",
     "mesh export",
     "plan",
     "convert",

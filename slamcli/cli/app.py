@@ -50,6 +50,7 @@ def _register() -> None:
         convert,
         demo,
         evaluate,
+        graph_cmd,
         info,
         map_cmd,
         mesh,
@@ -72,6 +73,7 @@ def _register() -> None:
         map_cmd,
         plan,
         vocab,
+        graph_cmd,
     ):
         module.register(app)
 

@@ -1,0 +1,610 @@
+"""``slamcli graph optimize``: a g2o pose graph optimised in its own dimension, with GTSAM.
+
+:func:`optimize_graph` takes a :class:`~slamcli.formats.g2o.PoseGraph` as read from a file and
+returns the optimised graph (same pose ids, same edges) with the figures ``run.json`` records.
+
+Conventions
+-----------
+- 2-D graphs are optimised on SE(2) (GTSAM ``Pose2`` and ``BetweenFactorPose2``), 3-D graphs
+  on SE(3) through :func:`slamcli.graphs.pose_graph.optimize_se3`. A g2o ``EDGE_SE2``'s
+  information is in the order (x, y, theta) of the residual ``measured⁻¹ · a⁻¹ · b``; GTSAM's
+  ``Pose2`` chart at the origin is that same (x, y, theta) of the relative pose, so the matrix
+  is used as it is and every edge's χ² is the one g2o computes.
+- The graph's pose ids are the listed vertices and every id an edge names. A pose without a
+  ``VERTEX`` line (Manhattan lists edges only) starts where the edges place it: the
+  consecutive-id (odometry) edges are chained from the smallest id first, loop closures reach
+  what remains.
+- The gauge: the ``FIX`` vertices, or the smallest pose id when there are none, are held
+  exactly by ``NonlinearEquality`` factors, which add nothing to the error.
+- Robust kernels act on loop closures only (edges between non-consecutive ids); odometry
+  edges keep their quadratic cost. ``kernel_width`` is in whitened-residual-norm units; its
+  default is ``sqrt`` of the 95 % χ² quantile of the residual's dimension (3 in 2-D, 6 in 3-D).
+- ``error_before`` and ``error_after`` are GTSAM's ``NonlinearFactorGraph.error`` of the
+  final solve's graph (``0.5 Σ ρ(r²)``, ``0.5 Σ χ²`` without a kernel) at the initial and the
+  optimised values.
+- Outliers: loop closures whose χ² after a robust solve exceeds the 99 % χ² quantile of the
+  residual's dimension. Without a kernel, ``find_outliers`` first solves with
+  :data:`DETECTION_KERNEL` to find them, then solves again with the outliers left out; with a
+  kernel, the robust solve is the result and its outliers are reported.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.errors import ConfigError, InputError
+from slamcli.geometry.chi2 import chi2_quantile
+from slamcli.geometry.planar import planar_to_se3, se3_to_planar
+from slamcli.geometry.se3 import compose, inverse, make_pose, quat_xyzw_to_matrix
+
+if TYPE_CHECKING:
+    from slamcli.formats.g2o import PoseGraph
+
+F64 = NDArray[np.float64]
+KERNELS = ("none", "huber", "cauchy", "dcs")
+DETECTION_KERNEL = "dcs"
+"""The kernel of the first solve when outliers are searched for without a kernel."""
+OUTLIER_PROBABILITY = 0.99
+_WIDTH_PROBABILITY = 0.95
+_RECHECK_ROUNDS = 5
+
+
+@dataclass(frozen=True)
+class Solve:
+    """One Levenberg–Marquardt solve.
+
+    Attributes:
+        kernel, kernel_width: the robust kernel on loop closures and its width (whitened
+            residual norm), ``"none"`` and None without one.
+        error_before, error_after: GTSAM's ``graph.error`` at the initial and optimised values.
+        iterations: Levenberg–Marquardt iterations run.
+        edge_chi2: (E,) float64 χ² of every edge of the input at the solution (edges left out
+            of the solve included), without the kernel.
+        edges_used: (E,) bool, the edges the solve used.
+        time_s: wall-clock seconds of the solve.
+    """
+
+    kernel: str
+    kernel_width: float | None
+    error_before: float
+    error_after: float
+    iterations: int
+    edge_chi2: F64
+    edges_used: NDArray[np.bool_]
+    time_s: float
+
+
+@dataclass(frozen=True)
+class GraphOptimization:
+    """What :func:`optimize_graph` returns.
+
+    Attributes:
+        initial: the input graph with a vertex for every pose id, sorted by id, starting
+            poses filled in from the edges where the file listed none.
+        optimized: ``initial`` with the optimised poses: same ids, edges and ``FIX`` lines.
+        final: the solve that gave ``optimized``.
+        detection: the robust solve that found the outliers, when it was a separate solve.
+        loop: (E,) bool, the loop closures (edges between non-consecutive ids).
+        outliers: (K,) int64 indices into the edges of the loop closures reported as outliers.
+        outlier_bound: the χ² gate (99 % quantile of the residual's dimension).
+        fixed_ids: pose ids held fixed (the gauge).
+        filled_ids: pose ids that had no vertex line.
+    """
+
+    initial: PoseGraph
+    optimized: PoseGraph
+    final: Solve
+    detection: Solve | None
+    loop: NDArray[np.bool_]
+    outliers: NDArray[np.int64]
+    outlier_bound: float
+    fixed_ids: tuple[int, ...]
+    filled_ids: tuple[int, ...]
+
+    def summary(self) -> dict[str, Any]:
+        """The JSON-able figures run.json records (without input and timing details)."""
+        g = self.optimized
+        detection = self.detection
+        chi2 = self.final.edge_chi2
+        return {
+            "dimension": g.dim,
+            "vertices": int(g.vertex_ids.size),
+            "vertices_filled_from_edges": len(self.filled_ids),
+            "edges": int(g.edges.shape[0]),
+            "odometry_edges": int((~self.loop).sum()),
+            "loop_closure_edges": int(self.loop.sum()),
+            "fixed": list(self.fixed_ids),
+            "kernel": self.final.kernel,
+            "kernel_width": self.final.kernel_width,
+            "error_before": self.final.error_before,
+            "error_after": self.final.error_after,
+            "iterations": self.final.iterations,
+            "solve_time_s": round(self.final.time_s, 4),
+            "edges_used": int(self.final.edges_used.sum()),
+            "outlier_search": None
+            if detection is None
+            else {
+                "kernel": detection.kernel,
+                "kernel_width": detection.kernel_width,
+                "error_before": detection.error_before,
+                "error_after": detection.error_after,
+                "iterations": detection.iterations,
+                "solve_time_s": round(detection.time_s, 4),
+                "note": "outlier candidates are the loop closures beyond the gate after this "
+                "robust solve; a least-squares solve without them re-admits those it fits "
+                "within the gate (up to 5 rounds); the final solve leaves the outliers out",
+            },
+            "outlier_chi2_bound": self.outlier_bound,
+            "outliers": [
+                {
+                    "edge": int(k),
+                    "from": int(g.edges[k, 0]),
+                    "to": int(g.edges[k, 1]),
+                    "chi2": float(chi2[k]),
+                    "chi2_robust_solve": float(detection.edge_chi2[k]),
+                }
+                for k in self.outliers
+            ]
+            if detection is not None
+            else [],
+        }
+
+
+def default_kernel_width(dim: int) -> float:
+    """``sqrt`` of the 95 % χ² quantile of a ``dim``-D graph's residual (3 or 6 dof)."""
+    return math.sqrt(chi2_quantile(_WIDTH_PROBABILITY, _dof(dim)))
+
+
+def optimize_graph(
+    graph: PoseGraph,
+    *,
+    kernel: str = "none",
+    kernel_width: float | None = None,
+    max_iterations: int = 100,
+    find_outliers: bool = False,
+) -> GraphOptimization:
+    """Optimise a g2o pose graph with Levenberg–Marquardt in its own dimension.
+
+    Args:
+        graph: a 2-D or 3-D graph from :func:`slamcli.formats.g2o.read_g2o`.
+        kernel: robust kernel on loop closures, one of :data:`KERNELS`.
+        kernel_width: kernel width (whitened residual norm); None for the default.
+        max_iterations: Levenberg–Marquardt iteration cap, >= 1.
+        find_outliers: report loop closures beyond the χ² gate after a robust solve (see the
+            module docstring).
+
+    Raises:
+        ConfigError: an unknown kernel, a width that is not > 0, max_iterations < 1.
+        InputError: repeated vertex ids, or poses the edges do not connect to the rest.
+    """
+    if kernel not in KERNELS:
+        raise ConfigError(
+            f"--kernel must be one of {', '.join(KERNELS)}, got {kernel!r}",
+            hint="kernels: none (least squares), huber, cauchy, dcs",
+        )
+    if kernel_width is not None and not (math.isfinite(kernel_width) and kernel_width > 0):
+        raise ConfigError(f"--kernel-width must be a number > 0, got {kernel_width!r}")
+    if max_iterations < 1:
+        raise ConfigError(f"--max-iterations must be >= 1, got {max_iterations}")
+    initial, filled = complete_vertices(graph)
+    ids = initial.vertex_ids
+    fixed_ids = tuple(sorted(set(initial.fixed) & set(ids.tolist()))) or (int(ids[0]),)
+    fixed = tuple(int(i) for i in np.searchsorted(ids, fixed_ids))
+    index = np.searchsorted(ids, initial.edges)
+    loop = np.abs(initial.edges[:, 1] - initial.edges[:, 0]) != 1
+    everything = np.ones(len(loop), dtype=bool)
+    bound = chi2_quantile(OUTLIER_PROBABILITY, _dof(graph.dim))
+    width = None if kernel == "none" else kernel_width or default_kernel_width(graph.dim)
+
+    def solve(
+        name: str, w: float | None, used: NDArray[np.bool_], start: F64 | None = None
+    ) -> tuple[F64, Solve]:
+        return _solve(initial, index, loop, used, fixed, name, w, max_iterations, start)
+
+    detection: Solve | None = None
+    outliers = np.zeros(0, dtype=np.int64)
+    if not find_outliers:
+        poses, final = solve(kernel, width, everything)
+    else:
+        detection_kernel = DETECTION_KERNEL if kernel == "none" else kernel
+        detection_width = width or kernel_width or default_kernel_width(graph.dim)
+        _, detection = solve(detection_kernel, detection_width, everything)
+        rejected = loop & (detection.edge_chi2 > bound)
+        for _ in range(_RECHECK_ROUNDS):
+            poses, final = solve("none", None, ~rejected)
+            recheck = loop & (final.edge_chi2 > bound)
+            if np.array_equal(recheck, rejected):
+                break
+            rejected = recheck
+        outliers = np.flatnonzero(rejected).astype(np.int64)
+        if kernel != "none":
+            poses, final = solve(kernel, width, ~rejected, start=poses)
+    optimized = dataclasses.replace(initial, poses=poses)
+    return GraphOptimization(
+        initial=initial,
+        optimized=optimized,
+        final=final,
+        detection=detection,
+        loop=loop,
+        outliers=outliers,
+        outlier_bound=bound,
+        fixed_ids=fixed_ids,
+        filled_ids=filled,
+    )
+
+
+def complete_vertices(graph: PoseGraph) -> tuple[PoseGraph, tuple[int, ...]]:
+    """``graph`` with a vertex for every pose id, sorted by id, and the ids that were added.
+
+    Listed vertices keep their poses. A missing pose is placed by composing an edge's
+    measurement onto a placed neighbour: consecutive-id edges first, in id order (the odometry
+    chain), then loop closures, until every pose is placed. With no vertices at all, the
+    smallest id starts at the origin.
+
+    Raises:
+        InputError: a vertex id listed twice, or pose ids no chain of edges reaches.
+    """
+    ids = graph.vertex_ids
+    if np.unique(ids).size != ids.size:
+        repeated = int(ids[np.flatnonzero(np.diff(np.sort(ids)) == 0)[0]])
+        raise InputError(
+            f"{graph.path}: vertex id {repeated} is listed twice",
+            hint="each VERTEX line needs its own id",
+        )
+    all_ids = np.union1d(ids, graph.edges.ravel()).astype(np.int64)
+    order = np.argsort(ids, kind="stable")
+    matrices = np.zeros((all_ids.size, 4, 4))
+    known = np.zeros(all_ids.size, dtype=bool)
+    at = np.searchsorted(all_ids, ids[order])
+    matrices[at] = _to_matrices(graph.dim, graph.poses[order])
+    known[at] = True
+    if not known.any():
+        matrices[0] = np.eye(4)
+        known[0] = True
+    rel = _to_matrices(graph.dim, graph.measurements)
+    pos = np.searchsorted(all_ids, graph.edges)
+    sequential = np.abs(graph.edges[:, 1] - graph.edges[:, 0]) == 1
+    by_priority = np.lexsort((pos.min(axis=1), ~sequential))
+    while not known.all():
+        progress = False
+        for k in by_priority.tolist():
+            a, b = pos[k]
+            if known[a] and not known[b]:
+                matrices[b] = matrices[a] @ rel[k]
+                known[b] = True
+                progress = True
+            elif known[b] and not known[a]:
+                matrices[a] = matrices[b] @ inverse(rel[k])
+                known[a] = True
+                progress = True
+        if not progress:
+            lost = all_ids[~known]
+            raise InputError(
+                f"{graph.path}: {lost.size} pose id(s) ({', '.join(map(str, lost[:5].tolist()))}"
+                f"{', ...' if lost.size > 5 else ''}) have no vertex line and no chain of edges "
+                "to a placed pose",
+                hint="the graph must be connected, or list a VERTEX line for each pose",
+            )
+    poses = _from_matrices(graph.dim, matrices)
+    poses[at] = graph.poses[order]
+    filled = tuple(int(i) for i in np.setdiff1d(all_ids, ids))
+    return dataclasses.replace(graph, vertex_ids=all_ids, poses=poses), filled
+
+
+def _dof(dim: int) -> int:
+    return 3 if dim == 2 else 6
+
+
+def _to_matrices(dim: int, values: F64) -> F64:
+    """g2o rows ((N, 3) x y theta or (N, 7) x y z qx qy qz qw) as (N, 4, 4) transforms."""
+    if dim == 2:
+        return planar_to_se3(values)
+    return make_pose(quat_xyzw_to_matrix(values[:, 3:7]), values[:, :3])
+
+
+def _from_matrices(dim: int, matrices: F64) -> F64:
+    if dim == 2:
+        return se3_to_planar(matrices)
+    from slamcli.geometry.se3 import matrix_to_quat_xyzw
+
+    return np.concatenate([matrices[:, :3, 3], matrix_to_quat_xyzw(matrices)], axis=1)
+
+
+def _solve(
+    graph: PoseGraph,
+    index: NDArray[np.intp],
+    loop: NDArray[np.bool_],
+    used: NDArray[np.bool_],
+    fixed: tuple[int, ...],
+    kernel: str,
+    width: float | None,
+    max_iterations: int,
+    start: F64 | None = None,
+) -> tuple[F64, Solve]:
+    """Optimise ``graph``'s poses using the ``used`` edges, from ``start`` (g2o rows) or the
+    graph's own poses; returns (poses as g2o rows, solve). ``error_before`` is always at the
+    graph's own poses."""
+    clock = time.perf_counter()
+    if graph.dim == 2:
+        poses, before, after, iterations, chi2 = _solve_se2(
+            graph, index, loop, used, fixed, kernel, width, max_iterations, start
+        )
+    else:
+        poses, before, after, iterations, chi2 = _solve_se3(
+            graph, index, loop, used, fixed, kernel, width, max_iterations, start
+        )
+    solve = Solve(
+        kernel=kernel,
+        kernel_width=width,
+        error_before=before,
+        error_after=after,
+        iterations=iterations,
+        edge_chi2=chi2,
+        edges_used=used.copy(),
+        time_s=time.perf_counter() - clock,
+    )
+    return poses, solve
+
+
+def _solve_se2(
+    graph: PoseGraph,
+    index: NDArray[np.intp],
+    loop: NDArray[np.bool_],
+    used: NDArray[np.bool_],
+    fixed: tuple[int, ...],
+    kernel: str,
+    width: float | None,
+    max_iterations: int,
+    start: F64 | None,
+) -> tuple[F64, float, float, int, F64]:
+    import gtsam
+
+    from slamcli.graphs.pose_graph import _kernel
+
+    make_kernel = _kernel(kernel, width, 3)
+    info = 0.5 * (graph.information + np.swapaxes(graph.information, 1, 2))
+    values = gtsam.Values()
+    for i, (x, y, theta) in enumerate(graph.poses.tolist()):
+        values.insert(i, gtsam.Pose2(x, y, theta))
+    factors = []
+    for k, ((a, b), (x, y, theta)) in enumerate(
+        zip(index.tolist(), graph.measurements.tolist(), strict=True)
+    ):
+        noise: Any = gtsam.noiseModel.Gaussian.Information(info[k])
+        if loop[k] and make_kernel is not None:
+            noise = gtsam.noiseModel.Robust.Create(make_kernel(), noise)
+        factors.append(gtsam.BetweenFactorPose2(a, b, gtsam.Pose2(x, y, theta), noise))
+    factor_graph = gtsam.NonlinearFactorGraph()
+    for k in np.flatnonzero(used).tolist():
+        factor_graph.add(factors[k])
+    for i in fixed:
+        factor_graph.add(gtsam.NonlinearEqualityPose2(i, values.atPose2(i)))
+    begin = values
+    if start is not None:
+        begin = gtsam.Values()
+        for i, (x, y, theta) in enumerate(start.tolist()):
+            begin.insert(i, gtsam.Pose2(x, y, theta))
+    solution, after, iterations = _levenberg_marquardt(factor_graph, begin, max_iterations)
+    before = float(factor_graph.error(values))
+    poses = np.array(
+        [[p.x(), p.y(), p.theta()] for p in (solution.atPose2(i) for i in range(len(graph.poses)))]
+    ).reshape(-1, 3)
+    chi2 = np.array(
+        [_chi2(f.unwhitenedError(solution), info[k]) for k, f in enumerate(factors)]
+    ).reshape(-1)
+    return poses, before, after, iterations, chi2
+
+
+def _solve_se3(
+    graph: PoseGraph,
+    index: NDArray[np.intp],
+    loop: NDArray[np.bool_],
+    used: NDArray[np.bool_],
+    fixed: tuple[int, ...],
+    kernel: str,
+    width: float | None,
+    max_iterations: int,
+    start: F64 | None,
+) -> tuple[F64, float, float, int, F64]:
+    from slamcli.graphs.pose_graph import Edge, from_g2o, graph_error, optimize_se3
+
+    poses, edges, _ = from_g2o(dataclasses.replace(graph, fixed=()))
+    kept = [e for e, u in zip(edges, used.tolist(), strict=True) if u]
+    begin = poses if start is None else _to_matrices(3, start)
+    if start is not None:
+        # The fixed poses stay where the file puts them.
+        begin[list(fixed)] = poses[list(fixed)]
+    result = optimize_se3(
+        begin,
+        kept,
+        fixed=fixed,
+        kernel=kernel,
+        kernel_width=width,
+        max_iterations=max_iterations,
+    )
+    chi2 = np.empty(len(edges))
+    chi2[used] = result.edge_chi2
+    if not used.all():
+        rel = compose(inverse(result.poses[index[~used, 0]]), result.poses[index[~used, 1]])
+        left_out: list[Edge] = [edges[k] for k in np.flatnonzero(~used).tolist()]
+        chi2[~used] = [_chi2_se3(e, r) for e, r in zip(left_out, rel, strict=True)]
+    before = (
+        result.error_before
+        if start is None
+        else graph_error(poses, kept, kernel=kernel, kernel_width=width)
+    )
+    return _from_matrices(3, result.poses), before, result.error_after, result.iterations, chi2
+
+
+def _chi2_se3(edge: Any, a_from_b: F64) -> float:
+    """χ² of an SE(3) edge at the relative pose ``a_from_b``, as GTSAM's between factor."""
+    import gtsam
+
+    measured = gtsam.Pose3(np.asarray(edge.a_from_b, dtype=np.float64))
+    r = np.asarray(measured.localCoordinates(gtsam.Pose3(a_from_b)))
+    return _chi2(r, np.asarray(edge.information, dtype=np.float64))
+
+
+def _chi2(r: Any, info: F64) -> float:
+    v = np.asarray(r, dtype=np.float64)
+    return float(v @ info @ v)
+
+
+def _levenberg_marquardt(graph: Any, initial: Any, max_iterations: int) -> tuple[Any, float, int]:
+    """GTSAM's Levenberg–Marquardt with its default parameters and an iteration cap; returns
+    the solution, its error and the iterations run."""
+    import gtsam
+
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(max_iterations))
+    params.setVerbosityLM("SILENT")
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    solution = optimizer.optimize()
+    return solution, float(graph.error(solution)), int(optimizer.iterations())
+
+
+@dataclass(frozen=True)
+class OptimizeRun:
+    """What :func:`optimize_to_folder` returns.
+
+    Attributes:
+        result: the optimisation.
+        record: the run.json record as written.
+        written: final paths of the files written, run.json last.
+    """
+
+    result: GraphOptimization
+    record: dict[str, Any]
+    written: list[Path]
+
+
+def optimize_to_folder(
+    path: str | Path,
+    out: str | Path,
+    *,
+    kernel: str = "none",
+    kernel_width: float | None = None,
+    max_iterations: int = 100,
+    find_outliers: bool = False,
+    force: bool = False,
+) -> OptimizeRun:
+    """Read a g2o graph, optimise it (:func:`optimize_graph`) and write a run folder.
+
+    ``out`` receives, all or nothing (:class:`slamcli.rundir.RunDir`): ``optimized.g2o`` (the
+    input's pose ids, a vertex line for each, the same edges and ``FIX`` lines),
+    ``trajectory.tum`` (the optimised poses, pose id ``i`` stamped ``i`` seconds; 2-D poses
+    at z = 0 with their yaw about +z), ``report.png`` (top view before and after) and
+    ``run.json`` (the input's path and SHA-256 and :meth:`GraphOptimization.summary` under
+    ``"graph"``).
+
+    Raises:
+        InputError: a missing or malformed file (``FormatError`` names ``file:line``).
+        ConfigError: bad options. ExportError: ``out`` not empty without ``force``.
+    """
+    from slamcli.formats.g2o import read_g2o, write_g2o
+    from slamcli.formats.trajectory import write_tum
+    from slamcli.rundir import RunDir, Timings, hash_input
+    from slamcli.types import Trajectory
+
+    source = Path(path)
+    if not source.is_file():
+        raise InputError(
+            f"{source}: no such file" if not source.exists() else f"{source}: is not a file",
+            hint="give the path of a .g2o pose graph",
+        )
+    timings = Timings()
+    with timings.stage("read"):
+        graph = read_g2o(source)
+        described = hash_input(source)
+    with RunDir(out, force=force) as target:
+        with timings.stage("optimize"):
+            result = optimize_graph(
+                graph,
+                kernel=kernel,
+                kernel_width=kernel_width,
+                max_iterations=max_iterations,
+                find_outliers=find_outliers,
+            )
+        with timings.stage("write"):
+            optimized = result.optimized
+            write_g2o(target.output("optimized.g2o"), optimized)
+            trajectory = Trajectory(
+                stamps_ns=optimized.vertex_ids * 1_000_000_000,
+                world_from_body=_to_matrices(optimized.dim, optimized.poses),
+            )
+            write_tum(target.output("trajectory.tum"), trajectory)
+            plot_optimization(target.output("report.png"), result)
+        summary = result.summary()
+        target.write_run_json(
+            command="graph optimize",
+            inputs=[described],
+            config={
+                "kernel": kernel,
+                "kernel_width": kernel_width,
+                "max_iterations": max_iterations,
+                "outliers": find_outliers,
+            },
+            timings=timings,
+            counts={k: summary[k] for k in ("vertices", "edges", "loop_closure_edges")},
+            metrics={k: summary[k] for k in ("error_before", "error_after", "iterations")}
+            | {"outliers": len(summary["outliers"])},
+            extra={"graph": summary, "trajectory_stamps": "pose id i is stamped i seconds"},
+        )
+        record = json.loads(target.staged("run.json").read_text(encoding="utf-8"))
+    written = [target.file(name) for name in target.outputs]
+    return OptimizeRun(result=result, record=record, written=written)
+
+
+def plot_optimization(path: str | Path, result: GraphOptimization) -> Path:
+    """Write a PNG: the graph from above (x-y) before and after, loop closures and outliers.
+
+    Left, the starting poses; right, the optimised ones. Thin grey lines are loop closures,
+    red ones the reported outliers.
+    """
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import LineCollection
+    from matplotlib.figure import Figure
+
+    from slamcli.report import save_png
+
+    fig = Figure(figsize=(12, 6))
+    FigureCanvasAgg(fig)
+    panels = (
+        ("before", result.initial, result.final.error_before),
+        ("after", result.optimized, result.final.error_after),
+    )
+    index = np.searchsorted(result.optimized.vertex_ids, result.optimized.edges)
+    outlier = np.zeros(len(result.loop), dtype=bool)
+    outlier[result.outliers] = True
+    for k, (label, graph, error) in enumerate(panels):
+        ax = fig.add_subplot(1, 2, k + 1)
+        xy = graph.poses[:, :2]
+        for mask, color, width in (
+            (result.loop & ~outlier, "0.75", 0.3),
+            (outlier, "tab:red", 0.8),
+        ):
+            segments = xy[index[mask]]
+            if len(segments):
+                ax.add_collection(LineCollection(list(segments), colors=color, linewidths=width))
+        ax.plot(xy[:, 0], xy[:, 1], color="tab:blue", linewidth=0.8)
+        ax.set_title(f"{label}: error {error:.6g}")
+        ax.set_xlabel("x (m)")
+        ax.set_ylabel("y (m)")
+        ax.set_aspect("equal", adjustable="datalim")
+        ax.grid(alpha=0.3)
+    fig.suptitle(
+        f"{result.optimized.dim}-D pose graph, {len(result.optimized.vertex_ids)} poses, "
+        f"{len(result.loop)} edges, kernel {result.final.kernel}, "
+        f"{result.outliers.size} outlier(s) in red"
+    )
+    fig.tight_layout()
+    return save_png(fig, path)
