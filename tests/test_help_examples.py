@@ -36,6 +36,7 @@ ORDER = [
     "run dense",
     "run visual",
     "run ekf",
+    "merge",
     "batch",
     "config dump",
     "info",
@@ -47,6 +48,11 @@ ORDER = [
     "plan",
     "convert",
 ]
+
+# What an example's help text says to run before it, when no earlier example writes it.
+BEFORE = {
+    "merge": [f"slamcli run ekf runs/world3 --robot {k} --out runs/world3_r{k}" for k in (1, 2, 3)],
+}
 
 _EXAMPLE = re.compile(r"\[bold\](slamcli\s[^\[]*?)\[/\]")
 
@@ -104,7 +110,7 @@ def work(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
 @pytest.mark.slow
 def test_every_example_runs(work: Path) -> None:
     found = examples_by_command()
-    lines = [line for name in ORDER for line in found[name]]
+    lines = [line for name in ORDER for line in [*BEFORE.get(name, []), *found[name]]]
     assert lines, "no examples found"
     runner = CliRunner()
     for line in lines:

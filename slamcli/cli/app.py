@@ -53,6 +53,7 @@ def _register() -> None:
         graph_cmd,
         info,
         map_cmd,
+        merge,
         mesh,
         plan,
         run,
@@ -74,6 +75,7 @@ def _register() -> None:
         plan,
         vocab,
         graph_cmd,
+        merge,
     ):
         module.register(app)
 

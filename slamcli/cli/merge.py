@@ -23,7 +23,9 @@ and over all under one shared alignment when the runs' logs have ground truth).
 A run that shares too few landmarks with the others is left out and named; the merge of the
 rest is written and the exit code is 3.
 
-Example: [bold]slamcli merge runs/world3_r1 runs/world3_r2 runs/world3_r3 --out runs/merged[/]
+Example, after 'slamcli synth landmarks runs/world3 --robots 3' and 'slamcli run ekf
+runs/world3 --robot K --out runs/world3_rK' for K = 1, 2, 3:
+[bold]slamcli merge runs/world3_r1 runs/world3_r2 runs/world3_r3 --out runs/merged[/]
 """
 
 
