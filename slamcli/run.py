@@ -199,6 +199,9 @@ def _run_into(
         with timings.stage("groundtruth"):
             groundtruth = source.groundtruth()
             true_landmarks = source.landmark_truth()
+            source_groundtruths: dict[int, Trajectory] = (
+                source.groundtruths() if hasattr(source, "groundtruths") else {}
+            )
         stats = source.stats
     if result.trajectory is None or len(result.trajectory) == 0:
         raise PipelineError(f"{input_path}: the {pipeline} pipeline produced no poses")
@@ -224,6 +227,16 @@ def _run_into(
             outputs.append(run.file("report.png"))
     else:
         log.info("%s has no ground truth: no accuracy figures", input_path)
+
+    robots: dict[int, Trajectory] = getattr(pipe, "robot_trajectories", {})
+    if len(robots) > 1:
+        with timings.stage("export"):
+            for ident, traj in sorted(robots.items()):
+                outputs.append(write_tum(run.output(f"trajectory_robot{ident}.tum"), traj))
+        truths = source_groundtruths
+        if truths:
+            with timings.stage("evaluate"):
+                metrics["robots"] = _evaluate_robots(truths, robots)
 
     counts = {
         "frames_read": stats.read,
@@ -359,6 +372,59 @@ def _evaluate_planar(
             series=result.series,
         )
     return metrics
+
+
+def _evaluate_robots(
+    truths: dict[int, Trajectory], estimates: dict[int, Trajectory]
+) -> dict[str, Any]:
+    """ATE of each robot of a several-robot run: after its own SE(2) alignment, and all robots
+    under one common SE(2) alignment (one rigid fit over every robot's poses at once; the
+    estimates share one world frame, so one transform must fit them all). Ground truth is
+    interpolated at the estimate's stamps, which must lie inside its span."""
+    import numpy as np
+
+    from slamcli.geometry import interpolate_planar, se3_to_planar
+    from slamcli.graphs.landmark_graph import rigid_fit_2d
+    from slamcli.planar_eval import evaluate_planar
+
+    per: dict[str, Any] = {}
+    est_xy, gt_xy, owner = [], [], []
+    for ident, est in sorted(estimates.items()):
+        gt = truths.get(ident)
+        if gt is None:
+            continue
+        try:
+            own = evaluate_planar(gt, est).ate.to_dict()
+        except InputError as exc:
+            log.warning("robot %d: no accuracy figures: %s", ident, exc.msg)
+            continue
+        g = interpolate_planar(gt.stamps_ns, se3_to_planar(gt.world_from_body), est.stamps_ns)
+        ok = np.isfinite(g).all(axis=1)
+        est_xy.append(se3_to_planar(est.world_from_body)[ok, :2])
+        gt_xy.append(g[ok, :2])
+        owner.append(np.full(int(ok.sum()), ident))
+        per[str(ident)] = {"ate": own}
+    if not est_xy:
+        return {}
+    src, dst, who = np.concatenate(est_xy), np.concatenate(gt_xy), np.concatenate(owner)
+    transform, rms = rigid_fit_2d(src, dst)
+    c, s = np.cos(transform[2]), np.sin(transform[2])
+    moved = src @ np.array([[c, s], [-s, c]]) + transform[:2]
+    err = np.hypot(*(moved - dst).T)
+    for key in per:
+        e = err[who == int(key)]
+        per[key]["ate_common"] = {
+            "rmse": float(np.sqrt(np.mean(e * e))),
+            "mean": float(e.mean()),
+            "max": float(e.max()),
+            "matched": int(e.size),
+        }
+    return {
+        "alignment": "se2, one transform for all robots",
+        "transform": transform.tolist(),
+        "ate_common": {"rmse": rms, "mean": float(err.mean()), "max": float(err.max())},
+        "per_robot": per,
+    }
 
 
 def _write_products(run: RunDir, result: SlamResult, glb: bool) -> list[Path]:

@@ -29,7 +29,7 @@ class SourceOptions:
     undistort: bool = False
     strict: bool = False
     max_chunk_mb: int | None = None
-    robot: int | None = None
+    robot: int | str | None = None
     ignore_ids: bool = False
     rgb_topic: str | None = None
     depth_topic: str | None = None
@@ -38,6 +38,11 @@ class SourceOptions:
     gt_topic: str | None = None
     gt_frame: str | None = None
     landmark_topic: str | None = None
+
+    def __post_init__(self) -> None:
+        # "--robot 2" arrives as text; one robot is recorded as the number it names.
+        if isinstance(self.robot, str) and self.robot.strip().isdigit():
+            object.__setattr__(self, "robot", int(self.robot))
 
     def open_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for :func:`slamcli.formats.open_source`.
@@ -86,6 +91,8 @@ def _fits(value: Any, default: Any, annotation: Any) -> bool:
     text = str(annotation)
     if value is None:
         return "None" in text
+    if "int | str" in text:
+        return isinstance(value, int | str) and not isinstance(value, bool)
     if "bool" in text:
         return isinstance(value, bool)
     if "int" in text:

@@ -429,7 +429,7 @@ def test_robot_option_and_missing_files(tmp_path: Path) -> None:
     with pytest.raises(InputError, match=r"has no Robot2_Measurement\.dat"):
         MrclamSource(folder, robot=2)
     with pytest.raises(ConfigError, match="robot must be"):
-        MrclamSource(folder, robot="2")  # type: ignore[arg-type]
+        MrclamSource(folder, robot=2.0)  # type: ignore[arg-type]
 
 
 # --- Victoria Park ----------------------------------------------------------------------------

@@ -105,11 +105,11 @@ MaxChunkMb = Annotated[
 ]
 
 Robot = Annotated[
-    int | None,
+    str | None,
     typer.Option(
         "--robot",
-        min=1,
-        help="MRCLAM folders: which robot's log (1-5). Default 1.",
+        help="MRCLAM folders: which robot's log (1-5; default 1), or several for 'run graph': "
+        "1,2,3 or all.",
         show_default=False,
         rich_help_panel=PANEL,
     ),

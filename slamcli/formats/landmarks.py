@@ -50,13 +50,14 @@ line-by-line parse only to name the first bad line.
 
 from __future__ import annotations
 
+import heapq
 import logging
 from collections import Counter
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 from numpy.typing import NDArray
@@ -108,6 +109,59 @@ _POW10 = np.array([10**k for k in range(19)], dtype=np.int64)
 MAX_TABLE_VALUE = 1e9
 """Largest magnitude of a table value (metres, m/s, radians, ids): far beyond any real
 reading, and small enough that the filters' squares and products stay finite."""
+
+
+@dataclass(frozen=True)
+class RobotFrame:
+    """A frame of one robot in a several-robot selection (``--robot 1,2,3``).
+
+    Attributes:
+        robot: the robot's number.
+        frame: its :class:`~slamcli.types.OdometryFrame` or :class:`~slamcli.types.LandmarkFrame`.
+        sighting: ``frame`` is a LandmarkFrame of sightings of other robots: its ids are their
+            numbers, ranges and bearings as for landmarks.
+    """
+
+    robot: int
+    frame: OdometryFrame | LandmarkFrame
+    sighting: bool = False
+
+    @property
+    def stamp_ns(self) -> int:
+        return self.frame.stamp_ns
+
+
+def parse_robots(robot: Any, available: list[int]) -> list[int]:
+    """The robots a ``robot`` option selects: a number, ``"N"``, ``"1,2,3"`` or ``"all"``.
+
+    Raises:
+        ConfigError: not such a selection, or a robot the folder does not have (both named).
+    """
+    listed = ", ".join(map(str, available)) or "none"
+    hint = f"--robot N, --robot 1,2,3 or --robot all (robots here: {listed})"
+    if isinstance(robot, bool) or not isinstance(robot, int | str):
+        raise ConfigError(
+            f"robot must be a robot number (1-5), a list or 'all', got {robot!r}", hint=hint
+        )
+    if isinstance(robot, int):
+        picked = [robot]
+    elif robot.strip().lower() == "all":
+        picked = list(available)
+    else:
+        parts = [p.strip() for p in robot.split(",")]
+        if not parts or not all(p.isdigit() for p in parts):
+            raise ConfigError(f"robot: {robot!r} is not a robot number, a list or 'all'", hint=hint)
+        picked = [int(p) for p in parts]
+    if len(set(picked)) != len(picked):
+        raise ConfigError(f"robot: {robot!r} names a robot twice", hint=hint)
+    missing = [r for r in picked if r not in available]
+    if missing:
+        raise ConfigError(
+            f"robot: no robot {', '.join(map(str, missing))} in this MRCLAM folder "
+            f"(robots: {listed})",
+            hint=hint,
+        )
+    return picked
 
 
 # --- Text tables -------------------------------------------------------------------------------
@@ -619,10 +673,15 @@ class MrclamSource(LandmarkSource):
     OPTIONS = ("robot", "ignore_ids", "strict")
 
     def __init__(
-        self, path: str | Path, *, robot: int = 1, ignore_ids: bool = False, strict: bool = False
+        self,
+        path: str | Path,
+        *,
+        robot: int | str = 1,
+        ignore_ids: bool = False,
+        strict: bool = False,
     ) -> None:
         self.path = Path(path)
-        if isinstance(robot, bool) or not isinstance(robot, int):
+        if isinstance(robot, bool) or not isinstance(robot, int | str):
             raise ConfigError(f"robot must be a robot number (1-5), got {robot!r}")
         self.ignore_ids = _check_ignore_ids(ignore_ids)
         self.strict = bool(strict)
@@ -630,6 +689,18 @@ class MrclamSource(LandmarkSource):
         self.ignored: list[str] = []
         _require_files(self.path, ("Barcodes.dat",), "an MRCLAM input", _MRCLAM_HINT)
         self.robots = sniff.mrclam_robots(self.path)
+        self.selection = [robot] if isinstance(robot, int) else parse_robots(robot, self.robots)
+        self.others: list[MrclamSource] = []
+        if len(self.selection) > 1:
+            if self.ignore_ids:
+                raise ConfigError(
+                    f"robot: several robots ({robot}) need landmark ids to share a map",
+                    hint="leave out --ignore-ids, or choose one robot",
+                )
+            self.others = [
+                MrclamSource(self.path, robot=r, strict=strict) for r in self.selection[1:]
+            ]
+        robot = self.selection[0]
         if robot not in self.robots:
             listed = ", ".join(map(str, self.robots)) or "none"
             raise InputError(
@@ -676,6 +747,9 @@ class MrclamSource(LandmarkSource):
         landmark = np.isin(subject, list(self.landmark_subjects))
         other = ~(robot | landmark)
         self.robot_sightings = int(np.count_nonzero(robot))
+        self.sightings = Observations(
+            meas.stamps_ns[robot], subject[robot], meas.values[robot, 1], meas.values[robot, 2]
+        )
         self.unknown_rows = np.flatnonzero(other)
         if self.strict and self.unknown_rows.size:
             k = int(self.unknown_rows[0])
@@ -695,6 +769,73 @@ class MrclamSource(LandmarkSource):
             meas.values[landmark, 1],
             meas.values[landmark, 2],
         )
+
+    def frames(self, kinds: Collection[str] = FRAME_KINDS) -> Iterator[Frame]:
+        """One robot's frames as :meth:`LandmarkSource.frames`; with several robots selected,
+        every robot's frames as :class:`RobotFrame` records in one time order (odometry, then
+        landmarks, then sightings of other robots at a tie; robots in selection order), the
+        sightings only when landmark frames are asked for."""
+        if not self.others:
+            return super().frames(kinds)
+        wanted = set([kinds] if isinstance(kinds, str) else kinds)
+        streams = [
+            self._robot_frames(src, super(MrclamSource, src).frames(kinds), "landmarks" in wanted)
+            for src in [self, *self.others]
+        ]
+        return self._count(heapq.merge(*streams, key=lambda item: item[0]))
+
+    def _count(
+        self, items: Iterator[tuple[tuple[int, int, int, int], RobotFrame]]
+    ) -> Iterator[Any]:
+        # The first robot's own frames are counted by its reading, the rest here.
+        for _, frame in items:
+            if frame.robot != self.robot or frame.sighting:
+                self.stats.read += 1
+            yield frame
+
+    def _robot_frames(
+        self, src: MrclamSource, frames: Iterator[Frame], sightings: bool
+    ) -> Iterator[tuple[tuple[int, int, int, int], RobotFrame]]:
+        """(sort key, frame) of one robot: its own frames with its sightings merged in."""
+        order = self.selection.index(src.robot)
+        own = (
+            (
+                (f.stamp_ns, 0 if isinstance(f, OdometryFrame) else 1, order, k),
+                RobotFrame(src.robot, cast(OdometryFrame | LandmarkFrame, f)),
+            )
+            for k, f in enumerate(frames)
+        )
+        if not sightings:
+            yield from own
+            return
+        obs = src.sightings
+        starts = obs.group_starts
+        seen = (
+            (
+                (int(obs.stamps_ns[a]), 2, order, i),
+                RobotFrame(
+                    src.robot,
+                    LandmarkFrame(
+                        int(obs.stamps_ns[a]),
+                        obs.ids[a:b].copy(),
+                        obs.ranges_m[a:b].copy(),
+                        obs.bearings_rad[a:b].copy(),
+                    ),
+                    sighting=True,
+                ),
+            )
+            for i, (a, b) in enumerate(zip(starts[:-1].tolist(), starts[1:].tolist(), strict=True))
+        )
+        yield from heapq.merge(own, seen, key=lambda item: item[0])
+
+    def groundtruths(self) -> dict[int, Trajectory]:
+        """Each selected robot's ground truth (robots without one are left out)."""
+        out = {}
+        for src in [self, *self.others]:
+            gt = src.groundtruth()
+            if gt is not None:
+                out[src.robot] = gt
+        return out
 
     def _unknown_reason(self, barcode: int, subject: int) -> str:
         if subject < 0:
@@ -773,6 +914,7 @@ class MrclamSource(LandmarkSource):
         details.update(
             robot=self.robot,
             robots=self.robots,
+            selection=self.selection,
             robot_sightings=self.robot_sightings,
             unknown_barcodes={str(b): c for b, c in self.unknown_barcodes.items()},
         )
@@ -1083,6 +1225,7 @@ __all__ = [
     "MrclamSource",
     "Observations",
     "Odometry",
+    "RobotFrame",
     "Table",
     "VictoriaParkSource",
     "read_landmark_log",

@@ -108,6 +108,23 @@ ground truth). --map adds an occupancy map. Settings: 'slamcli config dump ekf'.
         ),
         evaluation="se2",
     ),
+    "graph": PipelineSpec(
+        target="slamcli.pipelines.graph:GraphSlam",
+        help="""Graph landmark SLAM (GTSAM factor graph, iSAM2): a planar trajectory and a \
+landmark map from odometry and range-bearing observations, for one robot or several.
+
+Keyposes with odometry factors grown from the EKF's motion model, range-bearing factors to the \
+landmarks (known ids with the EKF's gating, or nearest neighbour / JCBB without ids), solved \
+incrementally by iSAM2 (--set solver=batch: Levenberg-Marquardt). Same inputs and outputs as \
+'run ekf' (trajectory.tum, landmarks.csv, report.png, run.json with the SE(2) ATE). On an \
+MRCLAM folder, --robot 1,2,3 or --robot all builds one graph of several robots: the first \
+anchors the frame, the others are placed by the landmarks they share and by robot-to-robot \
+sightings; writes trajectory_robotN.tum per robot and the ATE per robot and under one common \
+alignment. Settings: 'slamcli config dump graph'.""",
+        example="slamcli run graph sample_data/landmarks --out runs/landmarks_graph --force",
+        produces=("trajectory.tum", "landmarks.csv", "report.png"),
+        evaluation="se2",
+    ),
 }
 """Pipelines by name. Adding one is one entry here and one module."""
 
