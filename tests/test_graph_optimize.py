@@ -185,31 +185,37 @@ def test_injected_wrong_loop_closures_are_found(tmp_path: Path) -> None:
     found = {o["edge"] for o in g["outliers"]}
     recall = len(found & set(injected.tolist())) / len(injected)
     false_positives = len(found - set(injected.tolist()))
-    assert recall >= 0.9
-    # DCS from Manhattan's odometry start also settles a few dozen true loops away from the
-    # least-squares optimum; on the clean graph it flags the same ones (checked below).
-    assert false_positives <= 0.03 * g["loop_closure_edges"]
+    assert recall == 1.0
+    # GNC drops 4 of manhattan's 1954 real loops on this graph (and on the clean one).
+    assert false_positives <= 8
     assert all(o["chi2"] > g["outlier_chi2_bound"] for o in g["outliers"])
+    assert g["outlier_search"]["kernel"] == "gnc-tls" and g["kernel"] == "dcs"
 
     clean = optimize_graph(read_g2o(_graph("manhattan")))
-    robust_clean = optimize_graph(read_g2o(_graph("manhattan")), kernel="dcs", find_outliers=True)
-    assert false_positives <= robust_clean.outliers.size + 5
     est = read_g2o(tmp_path / "run" / "optimized.g2o").poses
     d = np.linalg.norm(est[:, :2] - clean.optimized.poses[:, :2], axis=1)
-    # Pose 0 holds the gauge in both solves, so positions compare directly.
-    assert np.sqrt(np.mean(d**2)) < 0.15
-    assert d.max() < 0.5
+    # Pose 0 holds the gauge in both solves, so positions compare directly; the final DCS
+    # solve moves manhattan by a few centimetres from the least-squares optimum.
+    assert np.sqrt(np.mean(d**2)) < 0.13
+    assert d.max() < 0.4
+
+
+def test_clean_graph_has_few_outliers() -> None:
+    result = optimize_graph(read_g2o(_graph("intel")), find_outliers=True)
+    assert result.outliers.size == 0
+    clean = optimize_graph(read_g2o(_graph("intel")))
+    np.testing.assert_allclose(result.optimized.poses, clean.optimized.poses, atol=1e-6)
 
 
 def test_without_kernel_outliers_come_from_a_robust_solve(tmp_path: Path) -> None:
     graph, injected = _with_wrong_loops(seed=3, count=20)
     result = optimize_graph(graph, find_outliers=True)
-    assert result.detection is not None and result.detection.kernel == "dcs"
+    assert result.detection is not None and result.detection.kernel == "gnc-tls"
     assert result.final.kernel == "none"
     assert set(injected.tolist()) <= set(result.outliers.tolist())
     assert not result.final.edges_used[injected].any()
     summary = result.summary()
-    assert summary["outlier_search"]["kernel"] == "dcs"
+    assert summary["outlier_search"]["kernel"] == "gnc-tls"
     assert summary["edges_used"] == len(graph.edges) - result.outliers.size
 
 

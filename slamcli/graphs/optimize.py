@@ -22,10 +22,12 @@ Conventions
 - ``error_before`` and ``error_after`` are GTSAM's ``NonlinearFactorGraph.error`` of the
   final solve's graph (``0.5 Σ ρ(r²)``, ``0.5 Σ χ²`` without a kernel) at the initial and the
   optimised values.
-- Outliers: loop closures whose χ² after a robust solve exceeds the 99 % χ² quantile of the
-  residual's dimension. Without a kernel, ``find_outliers`` first solves with
-  :data:`DETECTION_KERNEL` to find them, then solves again with the outliers left out; with a
-  kernel, the robust solve is the result and its outliers are reported.
+- Outliers: GTSAM's graduated non-convexity (``GncLMOptimizer``, truncated least squares,
+  odometry edges known inliers, inlier threshold the ``1 - 1e-5`` χ² quantile) over every edge
+  from the starting poses drops the candidates; a least-squares solve without them re-admits
+  the loop closures within the 99 % χ² gate (up to 5 rounds), and the loop closures beyond
+  the gate are the outliers. The final solve leaves them out, with ``kernel`` when one is
+  given. The GNC solve does not report its iteration count (``iterations`` 0).
 """
 
 from __future__ import annotations
@@ -51,8 +53,12 @@ if TYPE_CHECKING:
 
 F64 = NDArray[np.float64]
 KERNELS = ("none", "huber", "cauchy", "dcs")
-DETECTION_KERNEL = "dcs"
-"""The kernel of the first solve when outliers are searched for without a kernel."""
+GNC_METHOD = "gnc-tls"
+"""The outlier search: graduated non-convexity with a truncated least squares loss."""
+GNC_PROBABILITY = 1.0 - 1e-5
+"""χ² probability of the GNC search's inlier threshold: the wrong loop closures it is meant
+for lie far beyond it, and a tighter threshold also drops real loops the least-squares
+solution fits."""
 OUTLIER_PROBABILITY = 0.99
 _WIDTH_PROBABILITY = 0.95
 _RECHECK_ROUNDS = 5
@@ -92,7 +98,7 @@ class GraphOptimization:
             poses filled in from the edges where the file listed none.
         optimized: ``initial`` with the optimised poses: same ids, edges and ``FIX`` lines.
         final: the solve that gave ``optimized``.
-        detection: the robust solve that found the outliers, when it was a separate solve.
+        detection: the GNC solve that found the outlier candidates (with --outliers).
         loop: (E,) bool, the loop closures (edges between non-consecutive ids).
         outliers: (K,) int64 indices into the edges of the loop closures reported as outliers.
         outlier_bound: the χ² gate (99 % quantile of the residual's dimension).
@@ -139,9 +145,11 @@ class GraphOptimization:
                 "error_after": detection.error_after,
                 "iterations": detection.iterations,
                 "solve_time_s": round(detection.time_s, 4),
-                "note": "outlier candidates are the loop closures beyond the gate after this "
-                "robust solve; a least-squares solve without them re-admits those it fits "
-                "within the gate (up to 5 rounds); the final solve leaves the outliers out",
+                "method": "graduated non-convexity (GTSAM GncLMOptimizer), truncated least "
+                "squares loss, odometry edges known inliers",
+                "note": "outlier candidates are the loop closures this solve drops; a "
+                "least-squares solve without them re-admits those it fits within the gate "
+                "(up to 5 rounds); the final solve leaves the outliers out",
             },
             "outlier_chi2_bound": self.outlier_bound,
             "outliers": [
@@ -179,8 +187,8 @@ def optimize_graph(
         kernel: robust kernel on loop closures, one of :data:`KERNELS`.
         kernel_width: kernel width (whitened residual norm); None for the default.
         max_iterations: Levenberg–Marquardt iteration cap, >= 1.
-        find_outliers: report loop closures beyond the χ² gate after a robust solve (see the
-            module docstring).
+        find_outliers: search for wrong loop closures (GNC, then least-squares re-checks; see
+            the module docstring) and leave them out of the final solve.
 
     Raises:
         ConfigError: an unknown kernel, a width that is not > 0, max_iterations < 1.
@@ -215,10 +223,8 @@ def optimize_graph(
     if not find_outliers:
         poses, final = solve(kernel, width, everything)
     else:
-        detection_kernel = DETECTION_KERNEL if kernel == "none" else kernel
-        detection_width = width or kernel_width or default_kernel_width(graph.dim)
-        _, detection = solve(detection_kernel, detection_width, everything)
-        rejected = loop & (detection.edge_chi2 > bound)
+        detection, weights = _gnc(initial, index, loop, fixed, max_iterations)
+        rejected = loop & (weights < 0.5)
         for _ in range(_RECHECK_ROUNDS):
             poses, final = solve("none", None, ~rejected)
             recheck = loop & (final.edge_chi2 > bound)
@@ -240,6 +246,71 @@ def optimize_graph(
         fixed_ids=fixed_ids,
         filled_ids=filled,
     )
+
+
+def gnc_inlier_bound(dim: int) -> float:
+    """The χ² beyond which the GNC search's truncated least squares drops a loop closure."""
+    return chi2_quantile(GNC_PROBABILITY, _dof(dim))
+
+
+def _gnc(
+    graph: PoseGraph,
+    index: NDArray[np.intp],
+    loop: NDArray[np.bool_],
+    fixed: tuple[int, ...],
+    max_iterations: int,
+) -> tuple[Solve, F64]:
+    """GTSAM's graduated non-convexity (Levenberg–Marquardt inside, truncated least squares
+    loss, odometry edges and the gauge known inliers) over every edge of ``graph``; returns
+    the solve and the (E,) weights of the edges (0 or 1 for loop closures)."""
+    import gtsam
+
+    from slamcli.graphs.pose_graph import _build_graph, from_g2o
+
+    clock = time.perf_counter()
+    n = len(loop)
+    values = gtsam.Values()
+    factor_graph = gtsam.NonlinearFactorGraph()
+    if graph.dim == 2:
+        info = 0.5 * (graph.information + np.swapaxes(graph.information, 1, 2))
+        for i, (x, y, theta) in enumerate(graph.poses.tolist()):
+            values.insert(i, gtsam.Pose2(x, y, theta))
+        for k, ((a, b), (x, y, theta)) in enumerate(
+            zip(index.tolist(), graph.measurements.tolist(), strict=True)
+        ):
+            noise = gtsam.noiseModel.Gaussian.Information(info[k])
+            factor_graph.add(gtsam.BetweenFactorPose2(a, b, gtsam.Pose2(x, y, theta), noise))
+        for i in fixed:
+            factor_graph.add(gtsam.NonlinearEqualityPose2(i, values.atPose2(i)))
+    else:
+        matrices, edges, _ = from_g2o(dataclasses.replace(graph, fixed=()))
+        factor_graph, _ = _build_graph(matrices, None, edges, fixed, "none", None, 1.0)
+        for i, t in enumerate(matrices):
+            values.insert(i, gtsam.Pose3(t))
+    base = gtsam.LevenbergMarquardtParams()
+    base.setMaxIterations(int(max_iterations))
+    base.setVerbosityLM("SILENT")
+    params = gtsam.GncLMParams(base)
+    params.setLossType(gtsam.GncLossType.TLS)
+    params.setKnownInliers(np.flatnonzero(~loop).tolist() + list(range(n, factor_graph.size())))
+    params.setAllowNonNoiseModelFactors(True)
+    optimizer = gtsam.GncLMOptimizer(factor_graph, values, params)
+    # GTSAM's threshold is on a factor's error, 0.5 χ².
+    optimizer.setInlierCostThresholds(0.5 * gnc_inlier_bound(graph.dim))
+    solution = optimizer.optimize()
+    weights = np.asarray(optimizer.getWeights(), dtype=np.float64).reshape(-1)[:n]
+    chi2 = np.array([2.0 * factor_graph.at(k).error(solution) for k in range(n)]).reshape(-1)
+    solve = Solve(
+        kernel=GNC_METHOD,
+        kernel_width=math.sqrt(gnc_inlier_bound(graph.dim)),
+        error_before=float(factor_graph.error(values)),
+        error_after=float(factor_graph.error(solution)),
+        iterations=0,
+        edge_chi2=chi2,
+        edges_used=np.ones(n, dtype=bool),
+        time_s=time.perf_counter() - clock,
+    )
+    return solve, weights
 
 
 def complete_vertices(graph: PoseGraph) -> tuple[PoseGraph, tuple[int, ...]]:
