@@ -248,7 +248,10 @@ class DenseConfig:
         min=0.0,
     )
     mesh_weight_threshold: float = setting(
-        3.0, help="least integration weight of voxels in the mesh and points", min=0.0
+        3.0,
+        help="least integration weight of voxels in the mesh and points; after a rebuild from "
+        "the keyframes it shrinks with their share of the frames, to one at least",
+        min=0.0,
     )
     undistort: bool = setting(
         True,
@@ -508,7 +511,7 @@ class DenseSlam:
                 else:
                     self._rebuild(corrections)
         with self._timed("extract"):
-            mesh, points, colors = self._volume.extract(self.config.mesh_weight_threshold)
+            mesh, points, colors = self._volume.extract(self._weight_threshold(corrections))
         trajectory = Trajectory(np.array(self._stamps, dtype=np.int64), np.stack(self._poses))
         keyframes = Trajectory(
             np.array([k.frame.stamp_ns for k in self._keyframes], dtype=np.int64),
@@ -845,6 +848,17 @@ class DenseSlam:
             return None
         corrected = np.stack([np.asarray(n.pose, dtype=np.float64) for n in graph.nodes])
         return corrected if self._moved_enough(corrected) else None
+
+    def _weight_threshold(self, rebuilt: F64 | None) -> float:
+        """The least voxel weight in the mesh: ``mesh_weight_threshold`` for a volume of every
+        integrated frame; a volume rebuilt from the keyframes alone saw each surface fewer
+        times, so the threshold shrinks with the keyframes' share of the frames (never below
+        one observation)."""
+        threshold = self.config.mesh_weight_threshold
+        if rebuilt is None or self._integrated == 0:
+            return threshold
+        share = len(self._keyframes) / self._integrated
+        return min(threshold, max(1.0, threshold * share))
 
     def _moved_enough(self, corrected: F64) -> bool:
         """Whether the corrected keyframe poses (K, 4, 4) move a keyframe far enough from
