@@ -150,10 +150,12 @@ def test_sphere2500_close_to_ground_truth() -> None:
     assert np.sqrt(np.mean(error**2)) < 0.1 * np.sqrt(np.mean(initial**2))
 
 
-def _with_wrong_loops(seed: int, count: int) -> tuple[PoseGraph, np.ndarray]:
-    """manhattan.g2o plus ``count`` wrong loop closures between random pose pairs, with the
-    information of a real odometry edge; returns the graph and the wrong edges' indices."""
-    source = read_g2o(_graph("manhattan"))
+def _with_wrong_loops(
+    seed: int, count: int, name: str = "manhattan"
+) -> tuple[PoseGraph, np.ndarray]:
+    """A shared 2-D graph plus ``count`` wrong loop closures between random pose pairs, with
+    the information of a real odometry edge; returns the graph and the wrong edges' indices."""
+    source = read_g2o(_graph(name))
     rng = np.random.default_rng(seed)
     ids = np.union1d(source.vertex_ids, source.edges.ravel())
     pairs: list[tuple[int, int]] = []
@@ -208,7 +210,7 @@ def test_clean_graph_has_few_outliers() -> None:
 
 
 def test_without_kernel_outliers_come_from_a_robust_solve(tmp_path: Path) -> None:
-    graph, injected = _with_wrong_loops(seed=3, count=20)
+    graph, injected = _with_wrong_loops(seed=3, count=20, name="intel")
     result = optimize_graph(graph, find_outliers=True)
     assert result.detection is not None and result.detection.kernel == "gnc-tls"
     assert result.final.kernel == "none"

@@ -25,9 +25,11 @@ non-consecutive ids) only; --kernel-width is in whitened-residual units (default
 the 95 % χ² quantile, 2.80 in 2-D, 3.55 in 3-D). Cauchy and DCS cut wrong loop closures \
 loose; Huber only bounds their pull.
 
-[bold]Outliers.[/] --outliers lists the loop closures whose χ² after a robust solve exceeds \
-the 99 % χ² gate (11.34 in 2-D, 16.81 in 3-D). With --kernel none it first solves with DCS \
-to find them, then solves again without them (run.json says so under outlier_search).
+[bold]Outliers.[/] --outliers finds wrong loop closures with GTSAM's graduated \
+non-convexity (truncated least squares, the odometry edges known to be right), confirms each \
+against the 99 % χ² gate (11.34 in 2-D, 16.81 in 3-D) in a least-squares solve without them, \
+lists them, and solves again without them, with --kernel if one is given (run.json says how \
+under outlier_search).
 
 Writes into --out (all or nothing): optimized.g2o (same pose ids, a vertex line for each, \
 the same edges), trajectory.tum (pose id i stamped i seconds; 2-D poses at z = 0 with \
