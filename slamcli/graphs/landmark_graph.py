@@ -28,6 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.ekf.filter import arc_motion, relative_motion
+from slamcli.geometry.planar import compose_planar as compose
 from slamcli.geometry.planar import wrap_angle
 
 F64 = NDArray[np.float64]
@@ -84,20 +85,6 @@ def between_covariance(delta: F64, cov: F64, floor: F64) -> F64:
     rot = np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]])
     out = rot @ cov @ rot.T + np.diag(floor)
     return np.asarray(0.5 * (out + out.T))
-
-
-def compose(a: F64, b: F64) -> F64:
-    """``a ⊕ b`` for (..., 3) planar poses."""
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    return np.stack(
-        [
-            a[..., 0] + c * b[..., 0] - s * b[..., 1],
-            a[..., 1] + s * b[..., 0] + c * b[..., 1],
-            wrap_angle(a[..., 2] + b[..., 2]),
-        ],
-        axis=-1,
-    )
 
 
 def between(a: F64, b: F64) -> F64:
