@@ -31,27 +31,23 @@ in the folder (:data:`OPEN3D_CAMERA_NAMES`); else the PrimeSense defaults Open3D
 
 from __future__ import annotations
 
-import logging
 import re
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats import sniff
-from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
+from slamcli.formats.base import Frame, ReadStats, SourceInfo, StreamInfo
 from slamcli.formats.camera import find_camera_file, load_camera_file, resolve_camera
-from slamcli.formats.images import decode_image, read_image_file
+from slamcli.formats.rgbd_folder import NAMED, FolderImage, RgbdFolderSource
 from slamcli.formats.text import iter_data_lines, parse_count, parse_floats
-from slamcli.formats.tum_rgbd import depth_sample_check
 from slamcli.types import ImageFrame, PinholeCamera, ProgressFn, RgbdFrame, Trajectory
-
-log = logging.getLogger(__name__)
 
 COLOUR_FOLDERS = sniff.REDWOOD_COLOUR_FOLDERS
 """Colour image folders, in the order they are looked for."""
@@ -78,8 +74,6 @@ FRAME_KINDS = ("rgbd", "image")
 """The frame kinds a Redwood folder provides."""
 
 _ALL_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu")
-_NAMED = 3
-_DEPTH_SAMPLES = 5
 _NUMBER = re.compile(r"(\d+)")
 _LOG_HINT = (
     "a Redwood .log has blocks of 5 lines: 'id id frame', then the 4x4 camera-to-world "
@@ -222,7 +216,7 @@ def find_groundtruth_log(folder: str | Path) -> tuple[Path | None, list[Path]]:
     return chosen, [p for p in logs if p != chosen]
 
 
-class RedwoodSource(SourceBase):
+class RedwoodSource(RgbdFolderSource):
     """An Open3D / Redwood RGB-D folder as a :class:`~slamcli.formats.base.Source`.
 
     Args:
@@ -240,6 +234,8 @@ class RedwoodSource(SourceBase):
     """
 
     format_name = "redwood"
+    CAMERA_HINT = "give the right camera with --camera or a camera_intrinsic.json in the folder"
+    MISSING = "is not a regular file"
     OPTIONS = ("depth_factor", "camera", "fx", "fy", "cx", "cy", "strict")
 
     def __init__(
@@ -292,14 +288,7 @@ class RedwoodSource(SourceBase):
         self.pairs, self.unpaired_colour, self.unpaired_depth, self.pairing = self._pair()
         resolved = self._resolve_camera(camera, fx, fy, cx, cy)
         self.camera, self.camera_source, file_factor = resolved
-        if depth_factor is not None:
-            self.depth_factor, self.depth_factor_source = float(depth_factor), "given"
-        elif file_factor is not None:
-            self.depth_factor, self.depth_factor_source = file_factor, "camera file"
-        else:
-            self.depth_factor, self.depth_factor_source = DEFAULT_DEPTH_FACTOR, "Redwood default"
-        self._dfactor = np.float32(self.depth_factor)
-        self._camera_size_confirmed = False
+        self._use_depth_factor(depth_factor, file_factor, DEFAULT_DEPTH_FACTOR, "Redwood default")
         self.groundtruth_path, self.other_logs = find_groundtruth_log(self.path)
 
     @classmethod
@@ -399,7 +388,7 @@ class RedwoodSource(SourceBase):
         wanted = self._check_kinds(kinds)
         stamps = self.frame_stamps_ns().tolist()
         for pair, stamp in zip(self.pairs, stamps, strict=True):
-            rgb = self._load_rgb(pair.colour)
+            rgb = self._read_colour(FolderImage(pair.colour))
             if rgb is None:
                 self._skip(pair.colour, 2 if "image" in wanted and "rgbd" in wanted else 1)
                 continue
@@ -408,16 +397,9 @@ class RedwoodSource(SourceBase):
                 yield ImageFrame(stamp, rgb, self.camera, pair.colour)
             if "rgbd" not in wanted:
                 continue
-            depth = self._load_depth(pair.depth)
-            if depth is None:
-                self._skip(pair.colour)
-                continue
-            if depth.shape != rgb.shape[:2]:
-                self._unreadable(
-                    pair.depth,
-                    f"is {depth.shape[1]}x{depth.shape[0]}, its colour image {pair.colour} "
-                    f"is {rgb.shape[1]}x{rgb.shape[0]}",
-                )
+            depth_image = FolderImage(pair.depth, depth=True)
+            depth = self._read_depth(depth_image)
+            if depth is None or not self._same_size(rgb, depth, pair.colour, depth_image):
                 self._skip(pair.colour)
                 continue
             self.stats.read += 1
@@ -458,10 +440,10 @@ class RedwoodSource(SourceBase):
         }
         for what, lone in (("colour", self.unpaired_colour), ("depth", self.unpaired_depth)):
             if lone:
-                more = f", and {len(lone) - _NAMED} more" if len(lone) > _NAMED else ""
+                more = f", and {len(lone) - NAMED} more" if len(lone) > NAMED else ""
                 problems.append(
                     f"{len(lone)} {what} image(s) have no partner with the same number: "
-                    + ", ".join(lone[:_NAMED])
+                    + ", ".join(lone[:NAMED])
                     + more
                 )
         if gt is not None and self.groundtruth_path is not None:
@@ -494,30 +476,7 @@ class RedwoodSource(SourceBase):
                     + f" (name it {GROUNDTRUTH_LOG_NAMES[2]})"
                 )
         details["frame_indices"] = [min(colour_index), max(colour_index)] if colour_index else None
-        unreadable = self._check_files(deep, progress)
-        details["unreadable"] = unreadable
-        if unreadable:
-            more = f", and {len(unreadable) - _NAMED} more" if len(unreadable) > _NAMED else ""
-            problems.append(
-                f"{len(unreadable)} image(s) missing or unreadable: "
-                + "; ".join(unreadable[:_NAMED])
-                + more
-            )
-        self._check_camera_size(problems)
-        depth_problem = self._check_depth_scale(details)
-        if depth_problem:
-            problems.append(depth_problem)
-        return SourceInfo(
-            format=self.format_name,
-            path=str(self.path),
-            streams=streams,
-            frames=n,
-            groundtruth=len(gt) if gt is not None else 0,
-            camera=self.camera,
-            camera_source=self.camera_source,
-            problems=problems,
-            details=details,
-        )
+        return self._finish_info(streams, gt, problems, details, deep, progress)
 
     def _check_kinds(self, kinds: Collection[str]) -> set[str]:
         wanted = set([kinds] if isinstance(kinds, str) else kinds)
@@ -535,127 +494,16 @@ class RedwoodSource(SourceBase):
             )
         return wanted
 
-    def _skip(self, name: str, frames: int = 1) -> None:
-        self.stats.skipped += frames
-        self.stats.skipped_names.extend([name] * frames)
-
-    def _imread(
-        self, rel: str, flags: int, depth: bool, expect: tuple[int, int] | None = None
-    ) -> tuple[NDArray[Any] | None, str]:
-        """Decode image ``rel`` (relative to the folder): ``(image, "")`` or ``(None, reason)``."""
-        data, reason = read_image_file(self.path / rel)
-        if data is None:
-            return None, reason
-        img, reason = decode_image(data, flags, expect=expect)
-        if img is None:
-            return None, reason
-        if depth and (img.dtype != np.uint16 or img.ndim != 2):
-            channels = 1 if img.ndim == 2 else img.shape[2]
-            return None, (
-                f"is {img.dtype} with {channels} channel(s), expected 16-bit single-channel depth"
-            )
-        return img, ""
-
-    def _unreadable(self, rel: str, reason: str, warn: bool = True) -> None:
-        if self.strict:
-            raise FormatError(
-                self.path / rel,
-                reason,
-                hint="without strict, unreadable images are skipped and counted",
-            )
-        if warn:
-            log.warning("skipping %s: %s", rel, reason)
-
-    def _load_rgb(self, rel: str) -> NDArray[np.uint8] | None:
-        """Colour image as (H, W, 3) uint8 RGB, or None if unusable.
-
-        The first colour image of another size than the camera is an InputError (the camera is
-        wrong); once one has matched, an odd-sized one is an unreadable frame.
-        """
-        import cv2
-
-        size = (self.camera.width, self.camera.height) if self._camera_size_confirmed else None
-        bgr, reason = self._imread(rel, cv2.IMREAD_COLOR, depth=False, expect=size)
-        if bgr is None:
-            self._unreadable(rel, reason)
-            return None
-        if bgr.shape[:2] != (self.camera.height, self.camera.width):
-            raise InputError(
-                f"{self.path / rel}: image is {bgr.shape[1]}x{bgr.shape[0]}, "
-                f"the camera ({self.camera_source}) is {self.camera.width}x{self.camera.height}",
-                hint="give the right camera with --camera or a camera_intrinsic.json in the folder",
-            )
-        self._camera_size_confirmed = True
-        return cast("NDArray[np.uint8]", cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB, dst=bgr))
-
-    def _load_depth(self, rel: str) -> NDArray[np.float32] | None:
-        """Depth image as (H, W) float32 metres (0 = no reading), or None if unusable."""
-        import cv2
-
-        size = (self.camera.width, self.camera.height)
-        raw, reason = self._imread(rel, cv2.IMREAD_UNCHANGED, depth=True, expect=size)
-        if raw is None:
-            self._unreadable(rel, reason)
-            return None
-        return np.divide(raw, self._dfactor, dtype=np.float32)
-
-    def _all_files(self) -> list[tuple[str, bool]]:
-        return [(f"{self.colour_dir.name}/{n}", False) for n in self.colour_files] + [
-            (f"depth/{n}", True) for n in self.depth_files
+    def _all_images(self) -> list[FolderImage]:
+        return [FolderImage(f"{self.colour_dir.name}/{n}") for n in self.colour_files] + [
+            FolderImage(f"depth/{n}", depth=True) for n in self.depth_files
         ]
 
-    def _check_files(self, deep: bool, progress: ProgressFn | None) -> list[str]:
-        """Images that are not regular files (or, with ``deep``, undecodable), as messages."""
-        import cv2
+    def _colour_images(self) -> Iterator[FolderImage]:
+        return (FolderImage(pair.colour) for pair in self.pairs)
 
-        jobs = self._all_files()
-        bad: list[str] = []
-        total = len(jobs)
-        for done, (rel, depth) in enumerate(jobs, start=1):
-            if deep:
-                flags = cv2.IMREAD_UNCHANGED if depth else cv2.IMREAD_COLOR
-                reason = self._imread(rel, flags, depth=depth)[1]
-            else:
-                reason = "" if (self.path / rel).is_file() else "is not a regular file"
-            if reason:
-                self._unreadable(rel, reason, warn=False)
-                bad.append(f"{rel} {reason}")
-            if progress is not None and (deep or done == total):
-                progress(done, total)
-        return bad
-
-    def _check_camera_size(self, problems: list[str]) -> None:
-        """Compare the first decodable colour image's size with the camera's."""
-        import cv2
-
-        for pair in self.pairs:
-            img = self._imread(pair.colour, cv2.IMREAD_UNCHANGED, depth=False)[0]
-            if img is None:
-                continue
-            h, w = img.shape[:2]
-            if (w, h) != (self.camera.width, self.camera.height):
-                problems.append(
-                    f"images are {w}x{h} but the camera ({self.camera_source}) is "
-                    f"{self.camera.width}x{self.camera.height}"
-                )
-            return
-
-    def _check_depth_scale(self, details: dict[str, Any]) -> str | None:
-        """Sample a few paired depth images and judge the depth factor."""
-        import cv2
-
-        if not self.pairs:
-            return None
-        n = min(_DEPTH_SAMPLES, len(self.pairs))
-        picks = np.unique(np.linspace(0, len(self.pairs) - 1, n).round().astype(np.intp))
-        values: list[NDArray[Any]] = []
-        pixels = 0
-        for k in picks.tolist():
-            raw = self._imread(self.pairs[k].depth, cv2.IMREAD_UNCHANGED, depth=True)[0]
-            if raw is not None:
-                pixels += raw.size
-                values.append(raw[raw > 0])
-        return depth_sample_check(values, pixels, self.depth_factor, details)
+    def _paired_depth_image(self, k: int) -> FolderImage:
+        return FolderImage(self.pairs[k].depth, depth=True)
 
 
 def _list_images(folder: Path, suffixes: tuple[str, ...]) -> list[str]:

@@ -26,22 +26,24 @@ without undistortion for that reason, which is why ``undistort`` is off by defau
 
 from __future__ import annotations
 
-import logging
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any, cast
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats import sniff
-from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
+from slamcli.formats.base import Frame, ReadStats, SourceInfo, StreamInfo
 from slamcli.formats.camera import DEFAULT_DEPTH_FACTOR, resolve_camera
-from slamcli.formats.images import decode_image, read_image_file
 from slamcli.formats.pairing import associate_stamps
+from slamcli.formats.rgbd_folder import DEPTH_PLAUSIBLE_M as DEPTH_PLAUSIBLE_M
+from slamcli.formats.rgbd_folder import FolderImage, RgbdFolderSource
+from slamcli.formats.rgbd_folder import depth_sample_check as depth_sample_check
+from slamcli.formats.rgbd_folder import depth_scale_problem as depth_scale_problem
 from slamcli.formats.text import iter_data_lines, parse_floats, parse_stamp_ns
 from slamcli.formats.trajectory import read_trajectory
 from slamcli.geometry.camera import undistort_image
@@ -54,23 +56,13 @@ from slamcli.types import (
     Trajectory,
 )
 
-log = logging.getLogger(__name__)
-
-_NAMED = 3
-"""Unreadable images named in info's problem line; ``--json`` lists them all."""
-
 GROUNDTRUTH_MAX_DT_S = 0.02
 """A frame counts as covered by ground truth when a pose lies within this many seconds."""
-
-DEPTH_PLAUSIBLE_M = (0.3, 10.0)
-"""Indoor RGB-D sensors report depths in this range (m); the depth-scale check relies on it."""
 
 FRAME_KINDS = ("rgbd", "image", "imu")
 """The frame kinds a TUM folder provides."""
 
 _ALL_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu")
-_DEPTH_SAMPLES = 5
-_KNOWN_DEPTH_FACTORS = {1000.0: "millimetres", 5000.0: "TUM units (5000 per metre)"}
 
 
 @dataclass(frozen=True)
@@ -127,7 +119,7 @@ def read_image_list(path: str | Path) -> ImageList:
     )
 
 
-class TumRgbdSource(SourceBase):
+class TumRgbdSource(RgbdFolderSource):
     """A TUM RGB-D folder as a :class:`~slamcli.formats.base.Source`.
 
     Args:
@@ -148,6 +140,7 @@ class TumRgbdSource(SourceBase):
     """
 
     format_name = "tum"
+    UNREADABLE = "listed image(s)"
     OPTIONS = (
         "max_dt",
         "dt_offset",
@@ -213,12 +206,9 @@ class TumRgbdSource(SourceBase):
         self.raw_camera = resolved.camera
         self.camera_source = resolved.source
         self.camera_is_fallback = resolved.fallback
-        if depth_factor is not None:
-            self.depth_factor, self.depth_factor_source = float(depth_factor), "given"
-        elif resolved.depth_factor is not None:
-            self.depth_factor, self.depth_factor_source = resolved.depth_factor, "camera file"
-        else:
-            self.depth_factor, self.depth_factor_source = DEFAULT_DEPTH_FACTOR, "TUM default"
+        self._use_depth_factor(
+            depth_factor, resolved.depth_factor, DEFAULT_DEPTH_FACTOR, "TUM default"
+        )
         self._remove_distortion = self.undistort and self.raw_camera.is_distorted
         self.camera = self.raw_camera.undistorted() if self._remove_distortion else self.raw_camera
         self.rgb_index, self.depth_index = associate_stamps(
@@ -227,8 +217,6 @@ class TumRgbdSource(SourceBase):
             round(self.max_dt * 1e9),
             round(self.dt_offset * 1e9),
         )
-        self._dfactor = np.float32(self.depth_factor)
-        self._camera_size_confirmed = False
 
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
@@ -336,13 +324,7 @@ class TumRgbdSource(SourceBase):
             if rgb is None or depth is None:
                 self._skip(name)
                 continue
-            if depth.shape != rgb.shape[:2]:
-                self._unreadable(
-                    self.depth_list,
-                    di,
-                    f"is {depth.shape[1]}x{depth.shape[0]}, its colour image "
-                    f"{name} is {rgb.shape[1]}x{rgb.shape[0]}",
-                )
+            if not self._same_size(rgb, depth, name, self._image(self.depth_list, di)):
                 self._skip(name)
                 continue
             self.stats.read += 1
@@ -411,31 +393,7 @@ class TumRgbdSource(SourceBase):
         if self.camera_is_fallback:
             problems.append(f"camera unknown: {self.camera_source}")
         self._coverage(gt, details, problems)
-        unreadable = self._check_files(deep, progress)
-        details["unreadable"] = unreadable
-        if unreadable:
-            # details["unreadable"] (info --json) names every one; the problem line, a few.
-            more = f", and {len(unreadable) - _NAMED} more" if len(unreadable) > _NAMED else ""
-            problems.append(
-                f"{len(unreadable)} listed image(s) missing or unreadable: "
-                + "; ".join(unreadable[:_NAMED])
-                + more
-            )
-        self._check_camera_size(problems)
-        depth_problem = self._check_depth_scale(details)
-        if depth_problem:
-            problems.append(depth_problem)
-        return SourceInfo(
-            format=self.format_name,
-            path=str(self.path),
-            streams=streams,
-            frames=n_pairs,
-            groundtruth=len(gt) if gt is not None else 0,
-            camera=self.camera,
-            camera_source=self.camera_source,
-            problems=problems,
-            details=details,
-        )
+        return self._finish_info(streams, gt, problems, details, deep, progress)
 
     def _check_kinds(self, kinds: Collection[str]) -> set[str]:
         wanted = set([kinds] if isinstance(kinds, str) else kinds)
@@ -459,83 +417,34 @@ class TumRgbdSource(SourceBase):
             )
         return wanted
 
-    def _skip(self, name: str) -> None:
-        self.stats.skipped += 1
-        self.stats.skipped_names.append(name)
+    def _image(self, lst: ImageList, k: int) -> FolderImage:
+        """Image ``k`` of ``lst`` (the colour or the depth list)."""
+        return FolderImage(lst.files[k], lst is self.depth_list, lst.path, lst.lines[k])
 
-    def _imread(
-        self, lst: ImageList, k: int, flags: int, expect: tuple[int, int] | None = None
-    ) -> tuple[NDArray[Any] | None, str]:
-        """Decode image ``k`` of ``lst``; returns ``(image, "")`` or ``(None, reason)``.
+    def _all_images(self) -> list[FolderImage]:
+        return [
+            self._image(lst, k) for lst in (self.rgb_list, self.depth_list) for k in range(len(lst))
+        ]
 
-        The size in the file's header is checked against ``expect`` (width, height) and
-        :data:`~slamcli.formats.images.MAX_IMAGE_PIXELS` before anything is decoded.
-        """
-        data, reason = read_image_file(self.path / lst.files[k])
-        if data is None:
-            return None, reason
-        img, reason = decode_image(data, flags, expect=expect)
-        if img is None:
-            return None, reason
-        if lst is self.depth_list and (img.dtype != np.uint16 or img.ndim != 2):
-            channels = 1 if img.ndim == 2 else img.shape[2]
-            return None, (
-                f"is {img.dtype} with {channels} channel(s), expected 16-bit single-channel depth"
-            )
-        return img, ""
+    def _colour_images(self) -> Iterator[FolderImage]:
+        return (self._image(self.rgb_list, k) for k in range(len(self.rgb_list)))
 
-    def _unreadable(self, lst: ImageList, k: int, reason: str, warn: bool = True) -> None:
-        """Image ``k`` of ``lst`` is unusable: a FormatError when strict, else maybe a warning."""
-        rel = lst.files[k]
-        if self.strict:
-            hint = "without strict, unreadable images are skipped and counted"
-            if reason == "does not exist":
-                raise FormatError(
-                    lst.path, f"lists {rel}, which does not exist", lst.lines[k], hint
-                )
-            raise FormatError(self.path / rel, f"{reason} (listed at {lst.where(k)})", hint=hint)
-        if warn:
-            log.warning("skipping %s: %s (listed at %s)", rel, reason, lst.where(k))
+    def _paired_depth_image(self, k: int) -> FolderImage:
+        return self._image(self.depth_list, int(self.depth_index[k]))
+
+    def _undistort(self, image: NDArray[Any], nearest: bool = False) -> NDArray[Any]:
+        """``image`` remapped onto the undistorted camera when asked (see the module docstring)."""
+        if not self._remove_distortion:
+            return image
+        return undistort_image(self.raw_camera, image, nearest=nearest)
 
     def _load_rgb(self, k: int) -> NDArray[np.uint8] | None:
-        """Colour image ``k`` as (H, W, 3) uint8 RGB (undistorted if asked), or None if unusable.
-
-        The first colour image of another size than the camera is an InputError: the camera is
-        wrong. Once one image has matched, an odd-sized one is an unreadable frame, refused from
-        its header.
-        """
-        import cv2
-
-        size = (self.camera.width, self.camera.height) if self._camera_size_confirmed else None
-        bgr, reason = self._imread(self.rgb_list, k, cv2.IMREAD_COLOR, expect=size)
-        if bgr is None:
-            self._unreadable(self.rgb_list, k, reason)
-            return None
-        if bgr.shape[:2] != (self.camera.height, self.camera.width):
-            raise InputError(
-                f"{self.path / self.rgb_list.files[k]}: image is {bgr.shape[1]}x{bgr.shape[0]}, "
-                f"the camera ({self.camera_source}) is {self.camera.width}x{self.camera.height}",
-                hint="give the right camera with --camera or a camera file next to the data",
-            )
-        self._camera_size_confirmed = True
-        rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB, dst=bgr)
-        if self._remove_distortion:
-            rgb = undistort_image(self.raw_camera, rgb)
-        return cast("NDArray[np.uint8]", rgb)
+        """Colour image ``k`` as (H, W, 3) uint8 RGB (undistorted if asked), or None if unusable."""
+        return self._read_colour(self._image(self.rgb_list, k))
 
     def _load_depth(self, k: int) -> NDArray[np.float32] | None:
         """Depth image ``k`` as (H, W) float32 metres (0 = no reading), or None if unusable."""
-        import cv2
-
-        size = (self.raw_camera.width, self.raw_camera.height)
-        raw, reason = self._imread(self.depth_list, k, cv2.IMREAD_UNCHANGED, expect=size)
-        if raw is None:
-            self._unreadable(self.depth_list, k, reason)
-            return None
-        if self._remove_distortion:
-            raw = undistort_image(self.raw_camera, raw, nearest=True)
-        # One pass from uint16 to float32 metres: no float64 intermediate, no extra copy.
-        return np.divide(raw, self._dfactor, dtype=np.float32)
+        return self._read_depth(self._image(self.depth_list, k))
 
     def _coverage(
         self, gt: Trajectory | None, details: dict[str, Any], problems: list[str]
@@ -560,122 +469,6 @@ class TumRgbdSource(SourceBase):
                 f"only {covered} of {len(self)} frames have a ground-truth pose within "
                 f"{GROUNDTRUTH_MAX_DT_S:g} s"
             )
-
-    def _check_files(self, deep: bool, progress: ProgressFn | None) -> list[str]:
-        """Listed images that are missing (or, with ``deep``, undecodable), as messages."""
-        import cv2
-
-        jobs = [(self.rgb_list, k, cv2.IMREAD_COLOR) for k in range(len(self.rgb_list))]
-        jobs += [(self.depth_list, k, cv2.IMREAD_UNCHANGED) for k in range(len(self.depth_list))]
-        bad: list[str] = []
-        total = len(jobs)
-        for done, (lst, k, flags) in enumerate(jobs, start=1):
-            if deep:
-                reason = self._imread(lst, k, flags)[1]
-            else:
-                reason = "" if (self.path / lst.files[k]).is_file() else "does not exist"
-            if reason:
-                self._unreadable(lst, k, reason, warn=False)
-                bad.append(f"{lst.files[k]} {reason} (listed at {lst.where(k)})")
-            if progress is not None and (deep or done == total):
-                progress(done, total)
-        return bad
-
-    def _check_camera_size(self, problems: list[str]) -> None:
-        """Compare the first decodable colour image's size with the camera's."""
-        import cv2
-
-        for k in range(len(self.rgb_list)):
-            img = self._imread(self.rgb_list, k, cv2.IMREAD_UNCHANGED)[0]
-            if img is None:
-                continue
-            h, w = img.shape[:2]
-            if (w, h) != (self.camera.width, self.camera.height):
-                problems.append(
-                    f"images are {w}x{h} but the camera ({self.camera_source}) is "
-                    f"{self.camera.width}x{self.camera.height}"
-                )
-            return
-
-    def _check_depth_scale(self, details: dict[str, Any]) -> str | None:
-        """Sample a few paired depth images and judge the depth factor (see DEPTH_PLAUSIBLE_M)."""
-        import cv2
-
-        if len(self) == 0:
-            return None
-        n = min(_DEPTH_SAMPLES, len(self))
-        picks = np.unique(np.linspace(0, len(self) - 1, n).round().astype(np.intp))
-        values: list[NDArray[np.uint16]] = []
-        pixels = 0
-        for p in picks.tolist():
-            raw = self._imread(self.depth_list, int(self.depth_index[p]), cv2.IMREAD_UNCHANGED)[0]
-            if raw is not None:
-                pixels += raw.size
-                values.append(raw[raw > 0])
-        return depth_sample_check(values, pixels, self.depth_factor, details)
-
-
-def depth_sample_check(
-    values: list[NDArray[Any]], pixels: int, factor: float, details: dict[str, Any]
-) -> str | None:
-    """Record sampled depth statistics in ``details["depth_check"]`` and judge the depth
-    factor. ``values`` are each sampled image's non-zero raw readings, ``pixels`` the pixels
-    sampled in all."""
-    if not values:
-        return None
-    valid = np.concatenate(values)
-    check: dict[str, Any] = {"samples": len(values), "valid_fraction": valid.size / pixels}
-    details["depth_check"] = check
-    if valid.size == 0:
-        return "the sampled depth images hold no readings (all zero)"
-    p5, median, p95 = (float(v) for v in np.percentile(valid, [5, 50, 95]) / factor)
-    check.update(
-        median_m=median,
-        p5_m=p5,
-        p95_m=p95,
-        plausible_fraction=_plausible_fraction(valid, factor),
-    )
-    return depth_scale_problem(valid, factor)
-
-
-def depth_scale_problem(raw: NDArray[Any], factor: float) -> str | None:
-    """Judge a depth factor from raw non-zero depth readings, or None if it looks right.
-
-    Indoor RGB-D sensors read between about 0.3 and 10 m (:data:`DEPTH_PLAUSIBLE_M`); a
-    Kinect-class sensor reports nothing nearer than ~0.4 m. If fewer than 80 % of readings land
-    in that range with ``factor`` but at least 80 % (and 20 points more) do with another common
-    factor (1000 = millimetres, 5000 = TUM), the data was most likely written with that one.
-    A scale error only shows when the scene reaches the range limits: millimetre data of a
-    scene 2-8 m away read with factor 5000 still looks plausible (0.4-1.6 m).
-
-    Args:
-        raw: (K,) raw readings, zeros already removed.
-        factor: raw units per metre being used.
-    """
-    if raw.size == 0:
-        return None
-    here = _plausible_fraction(raw, factor)
-    if here >= 0.8:
-        return None
-    median = float(np.median(raw)) / factor
-    lo, hi = DEPTH_PLAUSIBLE_M
-    what = f"median {median:.2f} m, only {here:.0%} of readings within {lo:g}-{hi:g} m"
-    best = max(
-        ((_plausible_fraction(raw, f), f) for f in _KNOWN_DEPTH_FACTORS if f != factor),
-        default=(0.0, factor),
-    )
-    if best[0] >= 0.8 and best[0] >= here + 0.2:
-        return (
-            f"depth looks like {_KNOWN_DEPTH_FACTORS[best[1]]} read with depth factor {factor:g} "
-            f"({what}); with depth factor {best[1]:g}, {best[0]:.0%} would be"
-        )
-    return f"depth readings look implausible for an indoor scene ({what}); check the depth factor"
-
-
-def _plausible_fraction(raw: NDArray[Any], factor: float) -> float:
-    lo, hi = DEPTH_PLAUSIBLE_M
-    m = raw / factor
-    return float(np.count_nonzero((m >= lo) & (m <= hi))) / raw.size
 
 
 def _stream(name: str, kind: str, stamps_ns: NDArray[np.int64], detail: str) -> StreamInfo:
