@@ -414,3 +414,98 @@ def save_png(fig: Any, path: str | Path) -> Path:
     except OSError as exc:
         raise ExportError(f"{path}: cannot write the plot ({exc.strerror})") from exc
     return Path(path)
+
+
+def multi_robot_figure(
+    estimates: dict[int, Trajectory],
+    truths: dict[int, Trajectory],
+    *,
+    transform: Any = None,
+    landmarks: LandmarkMap | None = None,
+    true_landmarks: LandmarkMap | None = None,
+    ate: dict[int, float] | None = None,
+    title: str = "",
+) -> Any:
+    """The top view of a several-robot run: every robot on one map (1000 x 800 pixels).
+
+    Each robot's estimate is a solid line in its own colour (labelled ``robot K``), its ground
+    truth a dashed line in the same colour; estimated landmarks are black crosses, surveyed ones
+    red. ``transform`` (x, y, yaw), the common SE(2) alignment of all robots onto the ground
+    truth, moves the estimates and landmarks; None draws them as estimated. ``ate`` (m, per
+    robot) goes into the labels.
+
+    Returns:
+        The matplotlib Figure (Agg canvas), for :func:`save_png`.
+    """
+    import numpy as np
+    from matplotlib import colormaps
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    def moved(xy: Any) -> Any:
+        if transform is None:
+            return xy
+        c, s = np.cos(transform[2]), np.sin(transform[2])
+        return xy @ np.array([[c, s], [-s, c]]) + np.asarray(transform[:2])
+
+    fig = Figure(figsize=(10, 8))
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes((0.08, 0.07, 0.68, 0.85))
+    colours = colormaps["tab10"]
+    for i, (ident, est) in enumerate(sorted(estimates.items())):
+        colour = colours(i % 10)
+        gt = truths.get(ident)
+        if gt is not None and len(gt):
+            g = _decimated(gt.positions[:, :2])
+            ax.plot(g[:, 0], g[:, 1], color=colour, lw=1.0, ls="--", alpha=0.7, zorder=2)
+        xy = moved(_decimated(est.positions[:, :2])) if len(est) else np.zeros((0, 2))
+        label = f"robot {ident}"
+        if ate is not None and ident in ate:
+            label += f" (ATE {ate[ident]:.3f} m)"
+        ax.plot(xy[:, 0], xy[:, 1], color=colour, lw=1.2, label=label, zorder=3)
+        if len(xy):
+            ax.plot(*xy[0], marker="o", ms=7, mfc="none", mec=colour, mew=1.5, ls="", zorder=4)
+    if landmarks is not None and len(landmarks):
+        lxy = moved(np.asarray(landmarks.xy, dtype=np.float64).reshape(-1, 2))
+        ax.scatter(
+            lxy[:, 0],
+            lxy[:, 1],
+            s=14,
+            c="k",
+            marker="+",
+            linewidths=1.0,
+            zorder=5,
+            label=f"landmarks ({len(landmarks)})",
+        )
+    if true_landmarks is not None and len(true_landmarks):
+        txy = np.asarray(true_landmarks.xy, dtype=np.float64).reshape(-1, 2)
+        ax.scatter(
+            txy[:, 0],
+            txy[:, 1],
+            s=20,
+            c="tab:red",
+            marker="x",
+            linewidths=0.8,
+            alpha=0.8,
+            zorder=3.5,
+            label="true landmarks",
+        )
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.grid(alpha=0.3)
+    aligned = ", one common SE(2) alignment" if transform is not None else ""
+    ax.set_title(
+        title
+        or f"{len(estimates)} robots in one frame{aligned}\n"
+        "solid: estimate, dashed: ground truth, circle: start"
+    )
+    ax.legend(loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize="small")
+    return fig
+
+
+def plot_multi_robot_run(path: str | Path, **kwargs: Any) -> Path:
+    """Write :func:`multi_robot_figure` (same keyword arguments) as a PNG."""
+    estimates = kwargs.pop("estimates")
+    truths = kwargs.pop("truths")
+    return save_png(multi_robot_figure(estimates, truths, **kwargs), path)

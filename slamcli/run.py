@@ -237,6 +237,12 @@ def _run_into(
         if truths:
             with timings.stage("evaluate"):
                 metrics["robots"] = _evaluate_robots(truths, robots)
+        with timings.stage("report"):
+            metrics.setdefault("robots", {})["plotted"] = _plot_robots(
+                run, robots, truths, metrics["robots"], result, true_landmarks
+            )
+        if "report.png" not in [p.name for p in outputs]:
+            outputs.append(run.file("report.png"))
 
     counts = {
         "frames_read": stats.read,
@@ -372,6 +378,31 @@ def _evaluate_planar(
             series=result.series,
         )
     return metrics
+
+
+def _plot_robots(
+    run: RunDir,
+    robots: dict[int, Trajectory],
+    truths: dict[int, Trajectory],
+    evaluation: dict[str, Any],
+    result: SlamResult,
+    true_landmarks: LandmarkMap | None,
+) -> list[int]:
+    """report.png of a several-robot run: every robot on one map, under the common alignment
+    when there is one. Returns the robots drawn."""
+    from slamcli.report import plot_multi_robot_run
+
+    per = evaluation.get("per_robot", {})
+    plot_multi_robot_run(
+        run.output("report.png"),
+        estimates=robots,
+        truths=truths,
+        transform=evaluation.get("transform"),
+        landmarks=result.landmarks,
+        true_landmarks=true_landmarks,
+        ate={int(k): v["ate_common"]["rmse"] for k, v in per.items() if "ate_common" in v},
+    )
+    return sorted(robots)
 
 
 def _evaluate_robots(

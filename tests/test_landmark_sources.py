@@ -695,3 +695,28 @@ def test_cli_info_victoria_and_world() -> None:
         assert text in res.stdout, text
     res = invoke(SAMPLE, "--robot", "1")
     assert res.exit_code == 1 and "--robot does not apply" in res.stderr
+
+
+def test_mrclam_real_subjects_are_five_robots_and_fifteen_landmarks() -> None:
+    with MrclamSource(mrclam(), robot=3) as src:
+        assert src.robots == [1, 2, 3, 4, 5]
+        assert src.robot_subjects == frozenset(range(1, 6))
+        assert src.landmark_subjects == frozenset(range(6, 21))
+
+
+def test_mrclam_robots_beyond_five_come_from_the_robot_files(tmp_path: Path) -> None:
+    # With Landmark_Groundtruth.dat a surveyed subject stays a landmark, robot files or not.
+    surveyed = write_mrclam(tmp_path / "a", robots=(1, 8))
+    with MrclamSource(surveyed, robot=8) as src:
+        assert src.robots == [1, 8]
+        assert src.robot_subjects == frozenset(range(1, 6))
+        assert src.observations.ids.tolist() == [6, 7, 8]
+    # Without it, a subject with a RobotK file is a robot: its barcode (81) is a sighting.
+    folder = write_mrclam(tmp_path / "b", robots=(1, 7))
+    (folder / "Landmark_Groundtruth.dat").unlink()
+    with MrclamSource(folder, robot="1,7") as src:
+        assert src.robot_subjects == frozenset({1, 2, 3, 4, 5, 7})
+        assert src.landmark_subjects == frozenset({6, 8})
+        assert src.observations.ids.tolist() == [6, 8]
+        assert src.sightings.ids.tolist() == [2, 7]
+        assert src.robot_sightings == 2

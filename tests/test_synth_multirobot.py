@@ -118,10 +118,34 @@ def test_ekf_runs_each_robot_against_the_synthetic_truth(tmp_path: Path) -> None
 
 def test_bad_robot_counts_are_refused(tmp_path: Path) -> None:
     with pytest.raises(ConfigError, match="robots"):
-        lm.generate_landmark_world(tmp_path / "x", robots=6)
+        lm.generate_landmark_world(tmp_path / "x", robots=lm.MAX_ROBOTS + 1)
     assert not (tmp_path / "x").exists()
     res = runner.invoke(app, ["synth", "landmarks", str(tmp_path / "y"), "--robots", "0"])
     assert res.exit_code == 2
+    res = runner.invoke(app, ["synth", "landmarks", str(tmp_path / "y"), "--robots", "17"])
+    assert res.exit_code == 2
+
+
+def test_eight_robots_number_landmarks_after_the_robots(tmp_path: Path) -> None:
+    lm.generate_landmark_world(tmp_path, seed=6, landmarks=25, duration_s=20.0, robots=8)
+    world = lm.simulate_multi_robot_world(seed=6, robots=8, landmarks=25, duration_s=20.0)
+    assert lm.landmark_subject0(8) == 9
+    with MrclamSource(tmp_path, robot="all") as source:
+        assert source.robots == list(range(1, 9))
+        assert source.selection == list(range(1, 9))
+        assert source.robot_subjects == frozenset(range(1, 9))
+        assert source.landmark_subjects == frozenset(range(9, 34))
+        assert source.unknown_barcodes == {}
+        np.testing.assert_array_equal(source.observations.ids, world.robots[0].meas_ids + 9)
+        assert source.robot_sightings == len(world.sightings[0].index)
+        seen = set()
+        for other in source.others:
+            assert other.robot_sightings == len(world.sightings[other.robot - 1].index)
+            seen |= set(other.sightings.ids.tolist())
+        assert seen & {6, 7, 8}
+        assert set(source.groundtruths()) == set(range(1, 9))
+    meta = json.loads((tmp_path / "world.json").read_text())
+    assert meta["subjects"]["landmarks"] == "9-33"
 
 
 def test_cli_writes_an_mrclam_folder(tmp_path: Path) -> None:

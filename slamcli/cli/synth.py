@@ -107,8 +107,8 @@ def landmarks(
         1,
         "--robots",
         min=1,
-        max=5,
-        help="Robots driving the field at once; 2-5 write an MRCLAM folder (RobotN_*.dat).",
+        max=16,
+        help="Robots driving the field at once; 2-16 write an MRCLAM folder (RobotN_*.dat).",
     ),
 ) -> None:
     """Simulate robots driving laps among landmarks, for EKF-SLAM and map merging.
@@ -118,10 +118,11 @@ def landmarks(
     limits, seed). Odometry has white noise and a constant scale error; observations are
     range-bearing within 6 m and a 180-degree field of view.
 
-    With --robots N (2-5) the robots start spread around the loop, robots 2 and 4 driving it
-    clockwise, and the folder is MRCLAM-shaped: Barcodes.dat, Landmark_Groundtruth.dat and per
-    robot RobotK_Odometry.dat, RobotK_Measurement.dat (landmarks and the other robots in view)
-    and RobotK_Groundtruth.dat, plus world.json; run each robot with
+    With --robots N (2-16) the robots start spread around the loop, the even-numbered ones
+    driving it clockwise, and the folder is MRCLAM-shaped: Barcodes.dat (landmarks numbered
+    after the robots), Landmark_Groundtruth.dat and per robot RobotK_Odometry.dat,
+    RobotK_Measurement.dat (landmarks and the other robots in view) and
+    RobotK_Groundtruth.dat, plus world.json; run each robot with
     'slamcli run ekf OUT --robot K' and join the runs with 'slamcli merge'.
 
     Example: [bold]slamcli synth landmarks runs/world --landmarks 60 --duration 60 --seed 3[/]

@@ -22,10 +22,13 @@ Formats:
   x std-dev, y std-dev), and per robot ``RobotN_Odometry.dat`` (t, v, omega),
   ``RobotN_Measurement.dat`` (t, barcode, range, bearing; the header calls the barcode column
   "Subject #") and ``RobotN_Groundtruth.dat`` (t, x, y, theta). Times are seconds, fields are
-  whitespace separated, ``#`` lines are comments. Barcodes are mapped to subjects; subjects
-  1-5 are the robots, and sightings of them are dropped (counted in
+  whitespace separated, ``#`` lines are comments. Barcodes are mapped to subjects; the robots
+  are subjects 1-5 (the real datasets' five) and every K with a ``RobotK_Odometry.dat`` (a
+  synthetic folder may have up to 16), less any subject of ``Landmark_Groundtruth.dat``.
+  Sightings of robots are dropped from the landmark frames (counted in
   ``info().details["robot_sightings"]``). Landmarks are the subjects of
-  ``Landmark_Groundtruth.dat`` (without it, every subject above 5). Measurements of barcodes
+  ``Landmark_Groundtruth.dat`` (without it, every subject of ``Barcodes.dat`` that is no
+  robot's). Measurements of barcodes
   in no table (the real data has a few: 34, 43, 50, 52) or of subjects that are neither are
   ignored (not data loss: the log is intact), listed in ``MrclamSource.ignored`` with their
   file:line and summarised in one warning; with ``strict`` they are a :class:`FormatError`.
@@ -91,7 +94,8 @@ FRAME_KINDS = ("odometry", "landmarks")
 """The frame kinds a landmark source provides."""
 
 MRCLAM_ROBOT_SUBJECTS = frozenset(range(1, 6))
-"""MRCLAM subject numbers of the five robots; sightings of them are not landmark observations."""
+"""MRCLAM subject numbers of the real datasets' five robots; a folder's robots are these and
+those with a ``RobotK_Odometry.dat`` (:attr:`MrclamSource.robot_subjects`)."""
 
 START_POSE_MAX_WAIT_S = 30.0
 """``start_pose`` falls back to the first ground-truth pose if it is at most this late."""
@@ -141,7 +145,7 @@ def parse_robots(robot: Any, available: list[int]) -> list[int]:
     hint = f"--robot N, --robot 1,2,3 or --robot all (robots here: {listed})"
     if isinstance(robot, bool) or not isinstance(robot, int | str):
         raise ConfigError(
-            f"robot must be a robot number (1-5), a list or 'all', got {robot!r}", hint=hint
+            f"robot must be a robot number, a list or 'all', got {robot!r}", hint=hint
         )
     if isinstance(robot, int):
         picked = [robot]
@@ -658,10 +662,17 @@ class MrclamSource(LandmarkSource):
 
     Args:
         path: the ``MRCLAM_DatasetN`` folder.
-        robot: which robot's odometry, measurements and ground truth to read (1-5).
+        robot: which robot's odometry, measurements and ground truth to read (a number K with
+            a ``RobotK_Odometry.dat``), or several (``"1,2,3"``, ``"all"``).
         ignore_ids: landmark ids become -1 (unknown correspondences).
         strict: a measurement of a barcode that is no landmark's and no robot's is a
             :class:`FormatError` instead of being skipped.
+
+    Attributes:
+        robots: the numbers K with a ``RobotK_Odometry.dat`` in the folder, sorted.
+        robot_subjects: the subjects that are robots: 1-5 and :attr:`robots`, less the
+            subjects of ``Landmark_Groundtruth.dat``.
+        landmark_subjects: the subjects that are landmarks.
 
     Raises:
         InputError: not an MRCLAM folder, or no such robot (the message lists the robots).
@@ -682,7 +693,7 @@ class MrclamSource(LandmarkSource):
     ) -> None:
         self.path = Path(path)
         if isinstance(robot, bool) or not isinstance(robot, int | str):
-            raise ConfigError(f"robot must be a robot number (1-5), got {robot!r}")
+            raise ConfigError(f"robot must be a robot number, got {robot!r}")
         self.ignore_ids = _check_ignore_ids(ignore_ids)
         self.strict = bool(strict)
         self.stats = ReadStats()
@@ -716,10 +727,12 @@ class MrclamSource(LandmarkSource):
             zip(barcodes.integers(1, "barcode").tolist(), subjects.tolist(), strict=True)
         )
         truth = self.landmark_truth()
+        surveyed = frozenset(truth.ids.tolist()) if truth is not None else frozenset()
+        self.robot_subjects = (MRCLAM_ROBOT_SUBJECTS | frozenset(self.robots)) - surveyed
         self.landmark_subjects = (
-            frozenset(truth.ids.tolist())
+            surveyed
             if truth is not None
-            else frozenset(s for s in subjects.tolist() if s not in MRCLAM_ROBOT_SUBJECTS)
+            else frozenset(s for s in subjects.tolist() if s not in self.robot_subjects)
         )
         odo = read_table(self.path / (prefix + "Odometry.dat"), ("time", "v", "omega"))
         odo.check_time_order()
@@ -743,7 +756,7 @@ class MrclamSource(LandmarkSource):
         subject = np.array(
             [self.barcode_subject.get(b, -1) for b in barcodes.tolist()], dtype=np.int64
         )
-        robot = np.isin(subject, list(MRCLAM_ROBOT_SUBJECTS))
+        robot = np.isin(subject, list(self.robot_subjects))
         landmark = np.isin(subject, list(self.landmark_subjects))
         other = ~(robot | landmark)
         self.robot_sightings = int(np.count_nonzero(robot))

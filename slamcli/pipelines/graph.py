@@ -244,6 +244,7 @@ class GraphSlam:
         self._sightings: list[tuple[int, int, int, int, F64]] = []
         self._next_id = 0
         self._obs_keys = 0
+        self._deferred = False
         self._with_id = 0
         self._without_id = 0
         self.robot_trajectories: dict[int, Trajectory] = {}
@@ -400,15 +401,23 @@ class GraphSlam:
     def _settle(self, robot: _Robot) -> None:
         """Put the robot's finished keyposes (all but the newest, which may still collect
         observations) into the graph, or try to place a robot that is not yet placed."""
+        catching_up = False
         if not robot.placed:
             if robot.ident == self._anchor:
                 robot.placed = True
                 robot.offset = self._start if self._start is not None else np.zeros(3)
             elif not self._align(robot):
                 return
+            else:
+                catching_up = True
+        # A robot's held keyposes go to the solver together: its first ones may see only
+        # landmarks of its own, and until the later ones that tie it to the map arrive, that
+        # part of the graph hangs on the weak prior alone (an indeterminate system).
+        self._deferred = catching_up
         while robot.done < len(robot.keys) - 1:
             self._place(robot, robot.done)
             robot.done += 1
+        self._deferred = False
         self._add_sightings()
 
     def _place(self, robot: _Robot, k: int) -> None:
@@ -458,7 +467,7 @@ class GraphSlam:
         if accepted:
             robot.gate_cov = np.diag(floor)
         self._obs_keys += 1
-        if self._obs_keys % c.update_every == 0:
+        if self._obs_keys % c.update_every == 0 and not self._deferred:
             g.flush()
 
     def _r_cov(self, rng: float) -> F64:

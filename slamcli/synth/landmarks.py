@@ -29,13 +29,14 @@ Measurement stamps coincide with odometry stamps (every ``odometry_hz / measurem
 one), and the pose in groundtruth.tum at that stamp is the pose the observation was taken
 from.
 
-Several robots (:func:`simulate_multi_robot_world`, ``robots`` 2 to 5) drive the same loop
+Several robots (:func:`simulate_multi_robot_world`, ``robots`` 2 to 16) drive the same loop
 through the same landmark field at the same time, from start points spread around the lap,
-robots 2 and 4 clockwise. They are written as an MRCLAM folder that
+the even-numbered robots clockwise. They are written as an MRCLAM folder that
 :class:`~slamcli.formats.landmarks.MrclamSource` reads (whitespace-separated, ``#`` comments,
 the same stamps as above)::
 
-    Barcodes.dat                 subject barcode   robots 1..N, landmark i is subject i + 6;
+    Barcodes.dat                 subject barcode   robots 1..N, landmark i is subject i + 6
+                                                   (i + N + 1 with more than five robots);
                                                    each barcode equals its subject
     Landmark_Groundtruth.dat     subject x y x_std y_std   true positions, std-devs 0
     RobotK_Odometry.dat          t v omega
@@ -354,11 +355,14 @@ class MultiRobotWorld:
     seed: int
 
 
-MAX_ROBOTS = len(MRCLAM_ROBOT_SUBJECTS)
-"""MRCLAM folders number robots 1-5; subjects above them are landmarks."""
+MAX_ROBOTS = 16
+"""Most robots of a multi-robot world."""
 
-LANDMARK_SUBJECT0 = MAX_ROBOTS + 1
-"""MRCLAM subject (and barcode) of landmark 0 in a multi-robot world; landmark i is i + 6."""
+
+def landmark_subject0(robots: int) -> int:
+    """MRCLAM subject (and barcode) of landmark 0 in a world of ``robots`` robots: 6 up to five
+    robots (the real datasets' numbering), else ``robots + 1``; landmark i is this plus i."""
+    return max(len(MRCLAM_ROBOT_SUBJECTS), robots) + 1
 
 
 def simulate_multi_robot_world(
@@ -372,8 +376,8 @@ def simulate_multi_robot_world(
 
     The field is the one :func:`simulate_landmark_world` places for the same seed. Robot ``k``
     (0-based) starts at lap fraction ``(k + u) / robots`` with ``u ~ U[0, 0.5)`` drawn from the
-    seed, and robots 2 and 4 drive the loop clockwise (the same arcs, reversed), so robots meet
-    and see each other. Each robot has its own odometry scale errors and noise. At every
+    seed, and the even-numbered robots drive the loop clockwise (the same arcs, reversed), so
+    robots meet and see each other. Each robot has its own odometry scale errors and noise. At every
     measurement stamp a robot observes the landmarks and the other robots (their centres) inside
     the sensor's range and field of view, with the same detection probability and noise.
 
@@ -585,7 +589,7 @@ def _generate_multi_robot(
     if not 1 <= robots <= MAX_ROBOTS:
         raise ConfigError(
             f"robots: expected 1 to {MAX_ROBOTS}, got {robots}",
-            hint=f"MRCLAM folders number their robots 1 to {MAX_ROBOTS}",
+            hint=f"a multi-robot world has 2 to {MAX_ROBOTS} robots",
         )
     with RunDir(out, force=force) as run:
         world = simulate_multi_robot_world(seed, robots, landmarks, duration_s, sensor)
@@ -602,14 +606,15 @@ def _generate_multi_robot(
             return path
 
         marks = world.robots[0].landmarks
-        subjects = list(range(1, robots + 1)) + [LANDMARK_SUBJECT0 + i for i in range(len(marks))]
+        subject0 = landmark_subject0(robots)
+        subjects = list(range(1, robots + 1)) + [subject0 + i for i in range(len(marks))]
         files = [
             write("Barcodes.dat", "Subject #    Barcode #", [f"{s}\t{s}" for s in subjects]),
             write(
                 "Landmark_Groundtruth.dat",
                 "Subject #    x [m]    y [m]    x std-dev [m]    y std-dev [m]",
                 [
-                    f"{LANDMARK_SUBJECT0 + i}\t{x:.6f}\t{y:.6f}\t0.000000\t0.000000"
+                    f"{subject0 + i}\t{x:.6f}\t{y:.6f}\t0.000000\t0.000000"
                     for i, (x, y) in enumerate(marks)
                 ],
             ),
@@ -626,7 +631,7 @@ def _generate_multi_robot(
                 )
             )
             index = np.concatenate([w.meas_index, seen.index])
-            barcode = np.concatenate([w.meas_ids + LANDMARK_SUBJECT0, seen.robot])
+            barcode = np.concatenate([w.meas_ids + subject0, seen.robot])
             rng = np.concatenate([w.meas_range, seen.range])
             bearing = np.concatenate([w.meas_bearing, seen.bearing])
             order = np.lexsort((barcode, index))
@@ -686,7 +691,7 @@ def _generate_multi_robot(
             "sensor": asdict(first.sensor),
             "subjects": {
                 "robots": f"1-{robots}",
-                "landmarks": f"{LANDMARK_SUBJECT0}-{LANDMARK_SUBJECT0 + len(marks) - 1}",
+                "landmarks": f"{subject0}-{subject0 + len(marks) - 1}",
                 "barcode": "equal to the subject",
             },
             "motion_model": "unicycle, exact arc integration of piecewise-constant controls",
