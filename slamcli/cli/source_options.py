@@ -108,7 +108,7 @@ Robot = Annotated[
     str | None,
     typer.Option(
         "--robot",
-        help="MRCLAM folders: which robot's log (1-5; default 1), or several for 'run graph': "
+        help="MRCLAM folders: which robot's log (default 1), or several for 'run graph': "
         "1,2,3 or all.",
         show_default=False,
         rich_help_panel=PANEL,
