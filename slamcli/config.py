@@ -140,7 +140,10 @@ def dump_config(instance: Any, section_name: str) -> str:
     if doc:
         lines.append("# " + _plain(doc.splitlines()[0]))
     lines.append(f"[{section_name}]")
-    attribute_docs = _attribute_docs(doc)
+    # Fields inherited from a shared base class are documented in the base's docstring.
+    attribute_docs: dict[str, str] = {}
+    for cls in reversed(type(instance).__mro__):
+        attribute_docs.update(_attribute_docs(inspect.cleandoc(cls.__doc__ or "")))
     for f in dataclasses.fields(instance):
         if not f.init:
             continue

@@ -49,11 +49,12 @@ F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class EkfConfig:
-    """Settings of :class:`EkfSlam`. Lengths in metres, angles in degrees, times in seconds.
+class LandmarkNoise:
+    """The start and the noise models shared by the landmark pipelines (``ekf``, ``graph``):
+    odometry noise that grows with speed and turn rate, and range-bearing noise.
 
     Attributes:
-        start: where the robot starts: ``groundtruth`` (the log's ground-truth pose at its
+        start: where the (first) robot starts: ``groundtruth`` (the log's ground-truth pose at its
             first frame, when it has one) or ``origin``.
         v_noise_speed, v_noise_turn: speed noise per m/s of speed and per rad/s of turn rate,
             as a density per √s (the error of commanded velocities grows with them).
@@ -66,6 +67,30 @@ class EkfConfig:
             a fraction of each step's length, a floor in m, and degrees per metre travelled.
         range_sigma, range_sigma_rel: range noise: a constant (m) plus a fraction of the range.
         bearing_sigma: bearing noise, deg.
+    """
+
+    start: str = setting("groundtruth", choices=("groundtruth", "origin"))
+    v_noise_speed: float = setting(0.15, min=0.0, unit="1/√s")
+    v_noise_turn: float = setting(0.05, min=0.0, unit="m/rad/√s")
+    w_noise_speed: float = setting(0.15, min=0.0, unit="rad/m/√s")
+    w_noise_turn: float = setting(0.15, min=0.0, unit="1/√s")
+    v_noise_floor: float = setting(0.005, min=0.0, unit="m/s/√s")
+    spot_turn_noise: float = setting(1.0, min=0.0, unit="1/√s")
+    spot_speed: float = setting(0.05, min=0.0, unit="m/s")
+    heading_noise_floor: float = setting(0.5, min=0.0, unit="deg/s/√s")
+    step_noise_rel: float = setting(0.05, min=0.0)
+    step_noise_floor: float = setting(0.01, min=0.0, unit="m")
+    step_heading_noise: float = setting(1.0, min=0.0, unit="deg/m")
+    range_sigma: float = setting(0.15, gt=0.0, unit="m")
+    range_sigma_rel: float = setting(0.01, min=0.0)
+    bearing_sigma: float = setting(1.0, gt=0.0, unit="deg")
+
+
+@dataclass(frozen=True)
+class EkfConfig(LandmarkNoise):
+    """Settings of :class:`EkfSlam`. Lengths in metres, angles in degrees, times in seconds.
+
+    Attributes:
         iterations: linearisations of each update (1 = the plain EKF; more = the iterated
             EKF, which copes better when the heading is uncertain).
         jacobians: ``first-estimates`` evaluates the measurement Jacobians at each landmark's
@@ -100,21 +125,6 @@ class EkfConfig:
         initial_sigma_m, initial_sigma_deg: uncertainty of the starting pose.
     """
 
-    start: str = setting("groundtruth", choices=("groundtruth", "origin"))
-    v_noise_speed: float = setting(0.15, min=0.0, unit="1/√s")
-    v_noise_turn: float = setting(0.05, min=0.0, unit="m/rad/√s")
-    w_noise_speed: float = setting(0.15, min=0.0, unit="rad/m/√s")
-    w_noise_turn: float = setting(0.15, min=0.0, unit="1/√s")
-    v_noise_floor: float = setting(0.005, min=0.0, unit="m/s/√s")
-    spot_turn_noise: float = setting(1.0, min=0.0, unit="1/√s")
-    spot_speed: float = setting(0.05, min=0.0, unit="m/s")
-    heading_noise_floor: float = setting(0.5, min=0.0, unit="deg/s/√s")
-    step_noise_rel: float = setting(0.05, min=0.0)
-    step_noise_floor: float = setting(0.01, min=0.0, unit="m")
-    step_heading_noise: float = setting(1.0, min=0.0, unit="deg/m")
-    range_sigma: float = setting(0.15, gt=0.0, unit="m")
-    range_sigma_rel: float = setting(0.01, min=0.0)
-    bearing_sigma: float = setting(1.0, gt=0.0, unit="deg")
     gate_prob: float = setting(0.999, gt=0.5, lt=1.0)
     iterations: int = setting(3, min=1)
     smooth: bool = setting(True)

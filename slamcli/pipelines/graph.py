@@ -55,6 +55,7 @@ from slamcli.graphs.landmark_graph import (
     pose_key,
     rigid_fit_2d,
 )
+from slamcli.pipelines.ekf import LandmarkNoise
 from slamcli.types import LandmarkFrame, LandmarkMap, OdometryFrame, SlamResult, Trajectory
 
 log = logging.getLogger(__name__)
@@ -63,23 +64,17 @@ F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class GraphConfig:
+class GraphConfig(LandmarkNoise):
     """Settings of :class:`GraphSlam`. Lengths in metres, angles in degrees, times in seconds.
 
     Attributes:
-        start: where the (first) robot starts: ``groundtruth`` (the log's ground-truth pose at
-            its first frame, when it has one) or ``origin``.
         solver: ``isam2`` (incremental) or ``batch`` (Levenberg–Marquardt).
         batch_every: with ``batch``, solver updates between two solves.
         update_every: keyposes with observations between two solver updates (the new ones
             are predicted from the last estimate meanwhile).
         keypose_interval: a keypose at least this often without observations, s.
-        v_noise_speed, v_noise_turn, w_noise_speed, w_noise_turn, v_noise_floor,
-            spot_turn_noise, spot_speed, heading_noise_floor, step_noise_rel, step_noise_floor,
-            step_heading_noise: the odometry noise, as in ``slamcli config dump ekf``.
         odometry_floor_m, odometry_floor_deg: standard deviations added to every odometry
             factor, so that none is singular.
-        range_sigma, range_sigma_rel, bearing_sigma: range-bearing noise, as the EKF's.
         robust_width: Huber kernel width on the whitened range-bearing residual (0 = none).
         gate_prob: χ² probability of the association gate (2 degrees of freedom).
         new_landmark_prob: an observation without id starts a landmark only outside this χ²
@@ -95,27 +90,12 @@ class GraphConfig:
         align_max_rms: largest RMS residual of that rigid fit, m.
     """
 
-    start: str = setting("groundtruth", choices=("groundtruth", "origin"))
     solver: str = setting("isam2", choices=("isam2", "batch"))
     batch_every: int = setting(5, min=1)
     update_every: int = setting(10, min=1)
     keypose_interval: float = setting(1.0, gt=0.0, unit="s")
-    v_noise_speed: float = setting(0.15, min=0.0, unit="1/√s")
-    v_noise_turn: float = setting(0.05, min=0.0, unit="m/rad/√s")
-    w_noise_speed: float = setting(0.15, min=0.0, unit="rad/m/√s")
-    w_noise_turn: float = setting(0.15, min=0.0, unit="1/√s")
-    v_noise_floor: float = setting(0.005, min=0.0, unit="m/s/√s")
-    spot_turn_noise: float = setting(1.0, min=0.0, unit="1/√s")
-    spot_speed: float = setting(0.05, min=0.0, unit="m/s")
-    heading_noise_floor: float = setting(0.5, min=0.0, unit="deg/s/√s")
-    step_noise_rel: float = setting(0.05, min=0.0)
-    step_noise_floor: float = setting(0.01, min=0.0, unit="m")
-    step_heading_noise: float = setting(1.0, min=0.0, unit="deg/m")
     odometry_floor_m: float = setting(0.001, gt=0.0, unit="m")
     odometry_floor_deg: float = setting(0.05, gt=0.0, unit="deg")
-    range_sigma: float = setting(0.15, gt=0.0, unit="m")
-    range_sigma_rel: float = setting(0.01, min=0.0)
-    bearing_sigma: float = setting(1.0, gt=0.0, unit="deg")
     robust_width: float = setting(2.0, min=0.0)
     gate_prob: float = setting(0.999, gt=0.5, lt=1.0)
     new_landmark_prob: float = setting(0.99999, gt=0.5, lt=1.0)
