@@ -262,6 +262,15 @@ class EkfSlam:
             np.isfinite(ekf.pose).all() and np.isfinite(ekf.pose_cov).all()
         ):
             raise _diverged(frame.stamp_ns, "the pose or its covariance is no longer finite")
+        # Whether the overflow reaches infinity first depends on the floating-point path; a
+        # position variance past (1,000 km)^2, or a negative one, is divergence either way.
+        if ekf is not None:
+            var = np.diagonal(ekf.pose_cov)[:2]
+            if (var < 0.0).any() or (var > _DIVERGED_VARIANCE_M2).any():
+                raise _diverged(
+                    frame.stamp_ns,
+                    f"the position variance reached {float(np.max(np.abs(var))):.3g} m²",
+                )
 
     def _advance(self, stamp_ns: int) -> None:
         """Move the robot to ``stamp_ns`` with the current control."""
@@ -679,6 +688,11 @@ def _relative(a: F64, b: F64) -> F64:
     c, s = np.cos(a[2]), np.sin(a[2])
     dx, dy = b[0] - a[0], b[1] - a[1]
     return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[2] - a[2])])
+
+
+_DIVERGED_VARIANCE_M2 = 1e12
+"""A position variance past this (a standard deviation of 1,000 km), or a negative one, means
+the filter has diverged."""
 
 
 def _diverged(stamp_ns: int | None, why: str) -> PipelineError:
