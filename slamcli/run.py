@@ -2,9 +2,10 @@
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import logging
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, is_dataclass, replace
 from pathlib import Path
@@ -184,17 +185,20 @@ def _run_into(
         with (
             timings.stage("track"),
             ReadAhead(items, ahead) if ahead else nullcontext(items) as reader,
+            _interrupts_kept() as interrupted,
         ):
             for frame in reader:
                 pipe.process(frame)
+                interrupted()
                 frames += 1
                 if progress:
                     progress(frames, max(total, frames))
         # The input's hash (for run.json) is read beside the pipeline's last steps when the
         # pipeline works on two cores.
         digest = Background(hash_input, input_path) if ahead else None
-        with timings.stage("finish"):
+        with timings.stage("finish"), _interrupts_kept() as interrupted:
             result = pipe.finish()
+            interrupted()
         # After the frames: a source may give ground truth at the times of the frames it read.
         with timings.stage("groundtruth"):
             groundtruth = source.groundtruth()
@@ -492,3 +496,45 @@ def _write_products(run: RunDir, result: SlamResult, glb: bool) -> list[Path]:
             write_points_ply(run.output("points.ply"), result.points, result.point_colors)
         )
     return written
+
+
+@contextlib.contextmanager
+def _interrupts_kept() -> Iterator[Callable[[], None]]:
+    """Remember every Ctrl-C while the block runs; the yielded function raises
+    KeyboardInterrupt when one came.
+
+    Native solvers that poll for signals during a solve (pycolmap's bundle adjustment does) may
+    stop early on Ctrl-C and clear the exception, and the run would go on as if nothing had
+    happened. The handler here still records the signal and hands it on as before, so the next
+    check ends the run. Outside the main thread the block runs as is.
+    """
+    import signal
+    import threading
+
+    received: list[int] = []
+
+    def check() -> None:
+        if received:
+            raise KeyboardInterrupt
+
+    if threading.current_thread() is not threading.main_thread():
+        yield check
+        return
+    previous = signal.getsignal(signal.SIGINT)
+    if not (callable(previous) or previous == signal.SIG_DFL):
+        # Ctrl-C is ignored here (or handled outside Python): leave it so.
+        yield check
+        return
+
+    def on_interrupt(signum: int, frame: Any) -> None:
+        received.append(signum)
+        if callable(previous):
+            previous(signum, frame)
+        elif previous == signal.SIG_DFL:
+            raise KeyboardInterrupt
+
+    signal.signal(signal.SIGINT, on_interrupt)
+    try:
+        yield check
+    finally:
+        signal.signal(signal.SIGINT, previous)

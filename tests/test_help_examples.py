@@ -36,6 +36,7 @@ ORDER = [
     "run dense",
     "run visual",
     "run ekf",
+    "run graph",
     "merge",
     "batch",
     "config dump",
