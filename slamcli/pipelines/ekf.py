@@ -85,6 +85,28 @@ class LandmarkNoise:
     range_sigma_rel: float = setting(0.01, min=0.0)
     bearing_sigma: float = setting(1.0, gt=0.0, unit="deg")
 
+    def control_psd(self, v: float, w: float) -> NDArray[np.float64]:
+        """(2,) noise densities of speed and turn rate (per √s), squared, while driving at
+        ``v`` m/s and ``w`` rad/s."""
+        av, aw = abs(v), abs(w)
+        sv = self.v_noise_speed * av + self.v_noise_turn * aw + self.v_noise_floor
+        turn = self.spot_turn_noise if av < self.spot_speed else self.w_noise_turn
+        sw = self.w_noise_speed * av + turn * aw + np.radians(self.heading_noise_floor)
+        return np.array([sv * sv, sw * sw])
+
+    def step_covariance(self, delta: NDArray[np.float64]) -> NDArray[np.float64]:
+        """(3, 3) covariance of a relative-pose odometry step ``delta`` (x, y, yaw)."""
+        dist = float(np.hypot(delta[0], delta[1]))
+        s = self.step_noise_rel * dist + self.step_noise_floor
+        sh = np.radians(self.step_heading_noise) * dist + self.step_noise_rel * abs(float(delta[2]))
+        return np.diag([s * s, s * s, sh * sh])
+
+    def observation_covariance(self, rng: float) -> NDArray[np.float64]:
+        """(2, 2) covariance of a range-bearing observation at range ``rng`` m."""
+        sr = self.range_sigma + self.range_sigma_rel * rng
+        sb = np.radians(self.bearing_sigma)
+        return np.diag([sr * sr, sb * sb])
+
 
 @dataclass(frozen=True)
 class EkfConfig(LandmarkNoise):
@@ -278,7 +300,7 @@ class EkfSlam:
         if self._t_ns is not None and self._control is not None and stamp_ns > self._t_ns:
             dt = (stamp_ns - self._t_ns) * 1e-9
             v, w = self._control
-            psd = self._control_psd(v, w)
+            psd = self.config.control_psd(v, w)
             ekf.predict_velocity(v, w, dt, psd)
             self._events.append(Velocity(dt, v, w, (float(psd[0]), float(psd[1]))))
             assert self._dr is not None
@@ -286,14 +308,6 @@ class EkfSlam:
             dr[0], dr[1], dr[2] = arc_step(dr[0], dr[1], dr[2], v, w, dt)[:3]
         if self._t_ns is None or stamp_ns > self._t_ns:
             self._t_ns = stamp_ns
-
-    def _control_psd(self, v: float, w: float) -> F64:
-        c = self.config
-        av, aw = abs(v), abs(w)
-        sv = c.v_noise_speed * av + c.v_noise_turn * aw + c.v_noise_floor
-        turn = c.spot_turn_noise if av < c.spot_speed else c.w_noise_turn
-        sw = c.w_noise_speed * av + turn * aw + np.radians(c.heading_noise_floor)
-        return np.array([sv * sv, sw * sw])
 
     def _odometry(self, frame: OdometryFrame) -> None:
         self.counts["odometry"] += 1
@@ -305,7 +319,7 @@ class EkfSlam:
             pose = se3_to_planar(frame.world_from_body)[0]
             if self._odom_pose is not None:
                 delta = _relative(self._odom_pose, pose)
-                step_cov = self._step_cov(delta)
+                step_cov = self.config.step_covariance(delta)
                 ekf.predict_relative(delta, step_cov)
                 self._events.append(Step(delta, step_cov))
                 assert self._dr is not None
@@ -317,19 +331,6 @@ class EkfSlam:
                 f"odometry at {frame.stamp_ns * 1e-9:.3f} s has neither (v, omega) nor a pose"
             )
         self._record(frame.stamp_ns)
-
-    def _step_cov(self, delta: F64) -> F64:
-        c = self.config
-        dist = float(np.hypot(delta[0], delta[1]))
-        s = c.step_noise_rel * dist + c.step_noise_floor
-        sh = np.radians(c.step_heading_noise) * dist + c.step_noise_rel * abs(float(delta[2]))
-        return np.diag([s * s, s * s, sh * sh])
-
-    def _r_cov(self, rng: float) -> F64:
-        c = self.config
-        sr = c.range_sigma + c.range_sigma_rel * rng
-        sb = np.radians(c.bearing_sigma)
-        return np.diag([sr * sr, sb * sb])
 
     def _observations(self, frame: LandmarkFrame) -> None:
         self._advance(frame.stamp_ns)
@@ -343,7 +344,11 @@ class EkfSlam:
         if len(zs):
             self._max_range = max(self._max_range, float(zs[:, 0].max()))
             self._max_bearing = max(self._max_bearing, float(np.abs(zs[:, 1]).max()))
-        r_covs = np.stack([self._r_cov(z[0]) for z in zs]) if len(zs) else np.empty((0, 2, 2))
+        r_covs = (
+            np.stack([self.config.observation_covariance(z[0]) for z in zs])
+            if len(zs)
+            else np.empty((0, 2, 2))
+        )
         seen: set[int] = set()
         known = ids >= 0
         self._with_id += int(known.sum())

@@ -281,24 +281,9 @@ class GraphSlam:
         """Integrate the robot's current control up to ``stamp_ns``."""
         if robot.t_ns is not None and robot.control is not None and stamp_ns > robot.t_ns:
             v, w = robot.control
-            robot.rel.velocity(v, w, (stamp_ns - robot.t_ns) * 1e-9, self._control_psd(v, w))
+            robot.rel.velocity(v, w, (stamp_ns - robot.t_ns) * 1e-9, self.config.control_psd(v, w))
         if robot.t_ns is None or stamp_ns > robot.t_ns:
             robot.t_ns = stamp_ns
-
-    def _control_psd(self, v: float, w: float) -> F64:
-        c = self.config
-        av, aw = abs(v), abs(w)
-        sv = c.v_noise_speed * av + c.v_noise_turn * aw + c.v_noise_floor
-        turn = c.spot_turn_noise if av < c.spot_speed else c.w_noise_turn
-        sw = c.w_noise_speed * av + turn * aw + np.radians(c.heading_noise_floor)
-        return np.array([sv * sv, sw * sw])
-
-    def _step_cov(self, delta: F64) -> F64:
-        c = self.config
-        dist = float(np.hypot(delta[0], delta[1]))
-        s = c.step_noise_rel * dist + c.step_noise_floor
-        sh = np.radians(c.step_heading_noise) * dist + c.step_noise_rel * abs(float(delta[2]))
-        return np.diag([s * s, s * s, sh * sh])
 
     def _odometry(self, robot: _Robot, frame: OdometryFrame) -> None:
         self.counts["odometry"] += 1
@@ -309,7 +294,7 @@ class GraphSlam:
             pose = se3_to_planar(frame.world_from_body)[0]
             if robot.odom_pose is not None:
                 delta = between(robot.odom_pose, pose)
-                robot.rel.step(delta, self._step_cov(delta))
+                robot.rel.step(delta, self.config.step_covariance(delta))
             robot.odom_pose = pose
             robot.t_ns = frame.stamp_ns if robot.t_ns is None else max(robot.t_ns, frame.stamp_ns)
         else:
@@ -435,7 +420,7 @@ class GraphSlam:
             return
         ids = np.asarray(key.ids, dtype=np.int64)
         zs = np.asarray(key.zs, dtype=np.float64)
-        r_covs = np.stack([self._r_cov(float(z[0])) for z in zs])
+        r_covs = np.stack([self.config.observation_covariance(float(z[0])) for z in zs])
         known = ids >= 0
         self._with_id += int(known.sum())
         self._without_id += int((~known).sum())
@@ -449,12 +434,6 @@ class GraphSlam:
         self._obs_keys += 1
         if self._obs_keys % c.update_every == 0 and not self._deferred:
             g.flush()
-
-    def _r_cov(self, rng: float) -> F64:
-        c = self.config
-        sr = c.range_sigma + c.range_sigma_rel * rng
-        sb = np.radians(c.bearing_sigma)
-        return np.diag([sr * sr, sb * sb])
 
     def _known(
         self, xk: int, pose: F64, pose_cov: F64, ids: NDArray[np.int64], zs: F64, r_covs: F64
@@ -593,7 +572,7 @@ class GraphSlam:
             cov = self._robots[a].gate_cov
             assert cov is not None
             view = _View(pa, cov, pb[None, :2], self.config.landmark_sigma_m**2 * 4)
-            r_cov = self._r_cov(float(z[0]))
+            r_cov = self.config.observation_covariance(float(z[0]))
             if float(view.innovations_all(z, r_cov)[2][0]) < self._gate:
                 g.sighting(xa, xb, z, r_cov)
                 self.counts["robot_sightings"] += 1
