@@ -386,8 +386,15 @@ def test_ctrl_c_stops_a_two_core_run_cleanly(tmp_path: Path) -> None:
 
     folder = shared_path("tum", "rgbd_dataset_freiburg1_rpy_excerpt")
     out = tmp_path / "run"
+    # The run starts as from an interactive shell, with Ctrl-C delivered and handled: a test
+    # runner's worker may hand its children SIGINT ignored or blocked, which they would keep.
+    launch = (
+        "import runpy, signal, sys; signal.signal(signal.SIGINT, signal.default_int_handler); "
+        "signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT]); sys.argv[0] = 'slamcli'; "
+        "runpy.run_module('slamcli', run_name='__main__', alter_sys=True)"
+    )
     proc = subprocess.Popen(
-        [sys.executable, "-m", "slamcli", "run", "visual", str(folder), "--out", str(out)],
+        [sys.executable, "-c", launch, "run", "visual", str(folder), "--out", str(out)],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,
