@@ -95,3 +95,41 @@ def test_boundary_maps_errors_to_exit_codes_and_one_line_messages() -> None:
         assert "Traceback" not in res.output
     res = runner.invoke(_cli_raising(InputError("x", hint="fix it")), [])
     assert "hint: fix it" in res.output
+
+
+def test_ctrl_c_during_shutdown_leaves_the_exit_status() -> None:
+    """Ctrl-C after a command finished: the status is the command's, never death by SIGINT."""
+    import os
+    import signal
+    import time
+
+    if os.name != "posix":
+        return
+    # An exit handler marks the start of shutdown and then waits, while the parent sends
+    # Ctrl-C after Ctrl-C until the process has ended.
+    code = (
+        "import atexit, sys, time\n"
+        "def _shutdown():\n"
+        "    print('shutdown', flush=True)\n"
+        "    time.sleep(0.3)\n"
+        "atexit.register(_shutdown)\n"
+        "sys.argv = ['slamcli', '--version']\n"
+        "from slamcli.cli.app import main\n"
+        "main()\n"
+    )
+    statuses = []
+    for _ in range(3):
+        proc = subprocess.Popen(
+            [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+        )
+        assert proc.stdout is not None
+        for line in proc.stdout:
+            if line.startswith("shutdown"):
+                break
+        deadline = time.monotonic() + 30
+        while proc.poll() is None and time.monotonic() < deadline:
+            proc.send_signal(signal.SIGINT)
+            time.sleep(0.001)
+        proc.communicate(timeout=30)
+        statuses.append(proc.returncode)
+    assert statuses == [0, 0, 0]

@@ -86,19 +86,40 @@ _register()
 def main() -> None:
     """The ``slamcli`` command."""
     try:
-        app()
+        try:
+            app()
+        finally:
+            _ignore_late_interrupts()
+    except KeyboardInterrupt:
+        # Ctrl-C between the error boundary and the line above: the command was interrupted.
+        _exit_interrupted()
     except SystemExit as exc:
         if exc.code == 130:
             _exit_interrupted()
         raise
 
 
+def _ignore_late_interrupts() -> None:
+    """Ignore Ctrl-C once the command's outcome is decided.
+
+    When the interpreter shuts down it puts SIGINT back to the operating system's default
+    action, so a Ctrl-C landing in the last milliseconds, after the run folder was committed
+    and the exit status chosen, killed the process by signal (status -2) instead of letting it
+    end with its status. Shutdown keeps an ignored signal ignored.
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is threading.main_thread():
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 def _exit_interrupted() -> NoReturn:
     """End an interrupted command with exit status 130, after the exit handlers.
 
-    The error boundary turns Ctrl-C into exit status 130, but a loaded machine showed the
-    interpreter still ending by SIGINT afterwards now and then (status -2), which scripts and
-    CI read as a crash. The exit handlers run here and the process ends at once with 130.
+    The error boundary turns Ctrl-C into exit status 130; a second Ctrl-C during the
+    interpreter's shutdown would end the process by SIGINT (status -2), which scripts and CI
+    read as a crash. The exit handlers run here and the process ends at once with 130.
     """
     import atexit
     import contextlib
