@@ -15,6 +15,9 @@ from numpy.typing import NDArray
 
 from slamcli.types import Frame, LandmarkMap, PinholeCamera, ProgressFn, Trajectory
 
+ALL_FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu")
+"""Every frame kind a source may be asked for."""
+
 
 @dataclass
 class StreamInfo:

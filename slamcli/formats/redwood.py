@@ -73,7 +73,6 @@ GROUNDTRUTH_LOG_NAMES = ("groundtruth.log", "gt.log", "trajectory.log", "traj.lo
 FRAME_KINDS = ("rgbd", "image")
 """The frame kinds a Redwood folder provides."""
 
-_ALL_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu")
 _NUMBER = re.compile(r"(\d+)")
 _LOG_HINT = (
     "a Redwood .log has blocks of 5 lines: 'id id frame', then the 4x4 camera-to-world "
@@ -234,6 +233,8 @@ class RedwoodSource(RgbdFolderSource):
     """
 
     format_name = "redwood"
+    frame_kinds = FRAME_KINDS
+    folder_label = "an Open3D/Redwood RGB-D folder"
     CAMERA_HINT = "give the right camera with --camera or a camera_intrinsic.json in the folder"
     MISSING = "is not a regular file"
     OPTIONS = ("depth_factor", "camera", "fx", "fy", "cx", "cy", "strict")
@@ -477,22 +478,6 @@ class RedwoodSource(RgbdFolderSource):
                 )
         details["frame_indices"] = [min(colour_index), max(colour_index)] if colour_index else None
         return self._finish_info(streams, gt, problems, details, deep, progress)
-
-    def _check_kinds(self, kinds: Collection[str]) -> set[str]:
-        wanted = set([kinds] if isinstance(kinds, str) else kinds)
-        unknown = sorted(wanted - set(_ALL_KINDS))
-        if unknown:
-            raise ConfigError(
-                f"unknown frame kind(s) {', '.join(unknown)}",
-                hint=f"kinds: {', '.join(_ALL_KINDS)}",
-            )
-        absent = sorted(wanted - set(FRAME_KINDS))
-        if absent:
-            raise InputError(
-                f"{self.path}: an Open3D/Redwood RGB-D folder has no {', '.join(absent)} frames",
-                hint=f"it provides {', '.join(FRAME_KINDS)}",
-            )
-        return wanted
 
     def _all_images(self) -> list[FolderImage]:
         return [FolderImage(f"{self.colour_dir.name}/{n}") for n in self.colour_files] + [

@@ -12,7 +12,7 @@ size, and the depth scale (:func:`depth_scale_problem`) of a few sampled depth i
 from __future__ import annotations
 
 import logging
-from collections.abc import Iterable
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, ClassVar, cast
@@ -20,8 +20,8 @@ from typing import Any, ClassVar, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from slamcli.errors import FormatError, InputError
-from slamcli.formats.base import ReadStats, SourceBase, SourceInfo, StreamInfo
+from slamcli.errors import ConfigError, FormatError, InputError
+from slamcli.formats.base import ALL_FRAME_KINDS, ReadStats, SourceBase, SourceInfo, StreamInfo
 from slamcli.formats.images import decode_image, read_image_file
 from slamcli.types import PinholeCamera, ProgressFn, Trajectory
 
@@ -79,6 +79,10 @@ class RgbdFolderSource(SourceBase):
     """
 
     format_name: ClassVar[str]
+    frame_kinds: ClassVar[tuple[str, ...]]
+    """The frame kinds the folder provides."""
+    folder_label: ClassVar[str]
+    """What messages call such a folder ("a TUM RGB-D folder")."""
     CAMERA_HINT: ClassVar[str] = (
         "give the right camera with --camera or a camera file next to the data"
     )
@@ -101,6 +105,27 @@ class RgbdFolderSource(SourceBase):
     def __len__(self) -> int:
         """Number of RGB-D frames (colour/depth pairs)."""
         raise NotImplementedError
+
+    def _check_kinds(self, kinds: Collection[str]) -> set[str]:
+        """The frame kinds asked for, checked against the known ones and the folder's."""
+        wanted = set([kinds] if isinstance(kinds, str) else kinds)
+        unknown = sorted(wanted - set(ALL_FRAME_KINDS))
+        if unknown:
+            raise ConfigError(
+                f"unknown frame kind(s) {', '.join(unknown)}",
+                hint=f"kinds: {', '.join(ALL_FRAME_KINDS)}",
+            )
+        self._check_depth_wanted(wanted)
+        absent = sorted(wanted - set(self.frame_kinds))
+        if absent:
+            raise InputError(
+                f"{self.path}: {self.folder_label} has no {', '.join(absent)} frames",
+                hint=f"it provides {', '.join(self.frame_kinds)}",
+            )
+        return wanted
+
+    def _check_depth_wanted(self, wanted: set[str]) -> None:
+        """Raise when RGB-D frames are wanted and the folder cannot give them."""
 
     def _all_images(self) -> list[FolderImage]:
         """Every image of the folder, for the file check of ``info``."""

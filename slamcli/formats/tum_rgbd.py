@@ -62,8 +62,6 @@ GROUNDTRUTH_MAX_DT_S = 0.02
 FRAME_KINDS = ("rgbd", "image", "imu")
 """The frame kinds a TUM folder provides."""
 
-_ALL_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu")
-
 
 @dataclass(frozen=True)
 class ImageList:
@@ -140,6 +138,8 @@ class TumRgbdSource(RgbdFolderSource):
     """
 
     format_name = "tum"
+    frame_kinds = FRAME_KINDS
+    folder_label = "a TUM RGB-D folder"
     UNREADABLE = "listed image(s)"
     OPTIONS = (
         "max_dt",
@@ -395,27 +395,13 @@ class TumRgbdSource(RgbdFolderSource):
         self._coverage(gt, details, problems)
         return self._finish_info(streams, gt, problems, details, deep, progress)
 
-    def _check_kinds(self, kinds: Collection[str]) -> set[str]:
-        wanted = set([kinds] if isinstance(kinds, str) else kinds)
-        unknown = sorted(wanted - set(_ALL_KINDS))
-        if unknown:
-            raise ConfigError(
-                f"unknown frame kind(s) {', '.join(unknown)}",
-                hint=f"kinds: {', '.join(_ALL_KINDS)}",
-            )
+    def _check_depth_wanted(self, wanted: set[str]) -> None:
         if "rgbd" in wanted and not self.has_depth:
             raise InputError(
                 f"{self.path}: has rgb.txt but no depth.txt: colour only, no RGB-D frames",
                 hint="RGB-D pipelines need depth; 'slamcli run visual' runs colour-only input "
                 "monocular",
             )
-        absent = sorted(wanted - set(FRAME_KINDS))
-        if absent:
-            raise InputError(
-                f"{self.path}: a TUM RGB-D folder has no {', '.join(absent)} frames",
-                hint=f"it provides {', '.join(FRAME_KINDS)}",
-            )
-        return wanted
 
     def _image(self, lst: ImageList, k: int) -> FolderImage:
         """Image ``k`` of ``lst`` (the colour or the depth list)."""

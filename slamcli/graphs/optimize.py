@@ -439,9 +439,9 @@ def _solve_se2(
 ) -> tuple[F64, float, float, int, F64]:
     import gtsam
 
-    from slamcli.graphs.pose_graph import _kernel
+    from slamcli.graphs.pose_graph import robust_kernel
 
-    make_kernel = _kernel(kernel, width, 3)
+    make_kernel = robust_kernel(kernel, width, 3)
     info = 0.5 * (graph.information + np.swapaxes(graph.information, 1, 2))
     values = gtsam.Values()
     for i, (x, y, theta) in enumerate(graph.poses.tolist()):

@@ -382,7 +382,10 @@ def _information(edge: Edge, dim: int, scale_sigma: float = 1.0) -> F64:
     return info
 
 
-def _kernel(name: str, width: float | None, dim: int) -> Any:
+def robust_kernel(name: str, width: float | None, dim: int) -> Any:
+    """A maker of GTSAM's robust estimator ``name`` (one of :data:`KERNELS`, ``none`` gives
+    None) of ``width`` in whitened units; None takes the 95 % chi-square bound of ``dim``
+    degrees of freedom."""
     import gtsam
 
     if name not in KERNELS:
@@ -431,7 +434,7 @@ def _build_graph(
     import gtsam
 
     dim = 6 if scales is None else 7
-    make_kernel = _kernel(kernel, kernel_width, dim)
+    make_kernel = robust_kernel(kernel, kernel_width, dim)
     graph = gtsam.NonlinearFactorGraph()
     factors = []
     for e in edges:
