@@ -133,3 +133,44 @@ def test_ctrl_c_during_shutdown_leaves_the_exit_status() -> None:
         proc.communicate(timeout=30)
         statuses.append(proc.returncode)
     assert statuses == [0, 0, 0]
+
+
+def test_reflow_joins_paragraph_lines_but_keeps_list_items_and_paragraphs() -> None:
+    from slamcli.cli.app import reflow
+
+    text = """First line
+    of the summary.
+
+    A paragraph wrapped
+    at the source's width.
+
+    1. one item
+    continued;
+    2. another.
+
+    \b
+    kept
+    as is"""
+    assert reflow(text) == (
+        "First line of the summary.\n\n"
+        "A paragraph wrapped at the source's width.\n\n"
+        "1. one item continued;\n2. another.\n\n"
+        "\b\nkept\nas is"
+    )
+
+
+def test_command_help_wraps_at_the_terminal_width_not_the_source_width() -> None:
+    import os
+
+    env = {**os.environ, "COLUMNS": "200"}
+    res = subprocess.run(
+        [sys.executable, "-m", "slamcli", "batch", "--help"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=60,
+    )
+    assert res.returncode == 0
+    # The source breaks this paragraph after "(a job that"; at 200 columns the terminal does not.
+    line = next(ln for ln in res.stdout.splitlines() if "(a job that" in ln)
+    assert "(a job that exceeds its timeout_s" in line

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import inspect
+import re
 from typing import NoReturn
 
 import typer
@@ -81,6 +83,50 @@ def _register() -> None:
 
 
 _register()
+
+
+_LIST_ITEM = re.compile(r"(\d+[.)]|[-*]) ")
+
+
+def reflow(text: str) -> str:
+    """Help text with each paragraph's lines joined, as the terminal should wrap it.
+
+    Typer keeps the line breaks of every paragraph after the first, so a docstring wrapped
+    at the source's width would print ragged at any other. A line that starts a numbered or
+    bulleted item keeps its break; a paragraph starting with ``\\b`` is left as written.
+    """
+    paragraphs = []
+    for paragraph in inspect.cleandoc(text).split("\n\n"):
+        if paragraph.startswith("\b"):
+            paragraphs.append(paragraph)
+            continue
+        lines: list[str] = []
+        for line in paragraph.splitlines():
+            if lines and not _LIST_ITEM.match(line):
+                lines[-1] = f"{lines[-1]} {line.strip()}"
+            else:
+                lines.append(line.strip())
+        paragraphs.append("\n".join(lines))
+    return "\n\n".join(paragraphs)
+
+
+def _reflow_help(group: typer.Typer) -> None:
+    """Reflow the help of every command and sub-group of ``group``."""
+    for command in group.registered_commands:
+        text = command.help or inspect.getdoc(command.callback)
+        if text:
+            command.help = reflow(text)
+    for sub in group.registered_groups:
+        if sub.help:
+            sub.help = reflow(sub.help)
+        if sub.typer_instance is not None:
+            info = sub.typer_instance.info
+            if isinstance(info.help, str):
+                info.help = reflow(info.help)
+            _reflow_help(sub.typer_instance)
+
+
+_reflow_help(app)
 
 
 def main() -> None:

@@ -38,6 +38,7 @@ def demo(
     3. ekf/: EKF landmark SLAM on the sample landmark world, with landmarks.csv and a report;
     4. visual/: feature-based visual SLAM on the same RGB-D sequence (ORB features, local
     bundle adjustment, loop closure), with keyframes, coloured points and the pose graph.
+
     Exits with 3 when frames had to be skipped.
 
     Example: [bold]slamcli demo --out runs/demo --force[/]
