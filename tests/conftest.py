@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -31,3 +32,19 @@ def tum_excerpt() -> Path:
 @pytest.fixture
 def trajectories_dir() -> Path:
     return shared_path("trajectories")
+
+
+@pytest.fixture(scope="session")
+def reference_run(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> Any:
+    """``reference_run(name)``: the run folder of a reference run (``reference_runs.RUNS``),
+    made once per test session, whichever test process asks first."""
+    from reference_runs import run_once
+
+    base = tmp_path_factory.getbasetemp()
+    # Under pytest-xdist each process has its own base folder inside the session's.
+    root = (base if worker_id == "master" else base.parent) / "reference-runs"
+
+    def get(name: str) -> Path:
+        return run_once(name, root)
+
+    return get

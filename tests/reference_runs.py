@@ -1,0 +1,255 @@
+"""Reference runs: commands whose outputs are recorded in ``tests/reference/`` and must come out
+the same after any change that is meant to move code, not change results.
+
+``python tests/reference_runs.py`` runs every command on this machine and records, for each,
+the output files named in :data:`RUNS` (and for ``plan`` the search's cost from ``plan.json``),
+with ``recorded.json`` naming the commit, the machine and the library versions.
+``tests/test_reference_runs.py`` runs the same commands and compares: byte for byte on a
+machine of the recorded kind (same CPU model and flags, same library versions), within the
+tolerances of :data:`RUNS` elsewhere (floating-point rounding differs across CPUs and library
+builds, and a visual tracker's choices follow it).
+
+Every command runs in-process through the CLI's own entry point, once per test session
+(:func:`run_once`), so the tests that read these runs share them.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import fcntl
+import hashlib
+import json
+import os
+import platform
+import shutil
+import subprocess
+from collections.abc import Iterator
+from dataclasses import dataclass
+from importlib import metadata
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parent
+RECORDED = HERE / "reference"
+SHARED_DATA = Path(
+    os.environ.get("SLAMCLI_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")
+)
+TUM = "{shared}/tum/rgbd_dataset_freiburg1_rpy_excerpt"
+ROOM = "{repo}/sample_data/rgbd_room"
+MRCLAM = "{shared}/landmarks/MRCLAM_Dataset6"
+NAV2_MAP = "{shared}/maps/turtlebot3_world.yaml"
+INTEL = "{shared}/pose_graphs/intel.g2o"
+
+LIBRARIES = ("numpy", "scipy", "opencv-python-headless", "open3d-cpu", "pycolmap", "gtsam")
+
+
+@dataclass(frozen=True)
+class Run:
+    """One reference command (``argv`` after ``slamcli``, without ``--out``), the files it
+    writes that are compared, and the largest position difference (m) accepted on a machine
+    of another kind."""
+
+    argv: tuple[str, ...]
+    files: tuple[str, ...]
+    tolerance_m: float
+
+    def command(self, out: Path) -> list[str]:
+        subs = {"shared": str(SHARED_DATA), "repo": str(REPO)}
+        return [a.format(**subs) for a in self.argv] + ["--out", str(out)]
+
+
+RUNS: dict[str, Run] = {
+    "visual_tum": Run(("run", "visual", TUM), ("trajectory.tum", "keyframes.tum"), 0.02),
+    "visual_room": Run(("run", "visual", ROOM), ("trajectory.tum", "keyframes.tum"), 0.02),
+    "mono_tum": Run(
+        ("run", "visual", TUM, "--set", "mode=mono"), ("trajectory.tum", "keyframes.tum"), 0.05
+    ),
+    "dense_tum": Run(("run", "dense", TUM), ("trajectory.tum", "keyframes.tum"), 0.02),
+    "dense_room": Run(("run", "dense", ROOM), ("trajectory.tum", "keyframes.tum"), 0.02),
+    "ekf_mrclam1": Run(
+        ("run", "ekf", MRCLAM, "--robot", "1"),
+        ("trajectory.tum", "trajectory_filtered.tum", "landmarks.csv"),
+        1e-4,
+    ),
+    "graph_mrclam1": Run(
+        ("run", "graph", MRCLAM, "--robot", "1"), ("trajectory.tum", "landmarks.csv"), 1e-4
+    ),
+    "plan_nav2": Run(
+        ("plan", NAV2_MAP, "--start", "-2,-0.5", "--goal", "2,0.5"),
+        ("path.csv", "path_smooth.csv", "trajectory.csv"),
+        1e-6,
+    ),
+    "optimize_intel": Run(("graph", "optimize", INTEL), ("optimized.g2o", "trajectory.tum"), 1e-6),
+}
+"""The reference runs by name."""
+
+PLAN_COST = "plan_cost.json"
+"""What is kept of plan.json: the search's exact costs."""
+
+DIGESTS = "digests.json"
+"""Each compared file's SHA-256, size and number of lines."""
+
+KEEP_WHOLE_BYTES = 100_000
+"""Files up to this size are kept whole; of a larger one, every :data:`SAMPLE_EVERY`-th line
+(and the last), in ``NAME.sample`` as ``line-number<TAB>line``."""
+SAMPLE_EVERY = 50
+
+
+def digest(path: Path) -> dict[str, object]:
+    """SHA-256, size and line count of a file."""
+    data = path.read_bytes()
+    return {
+        "sha256": hashlib.sha256(data).hexdigest(),
+        "bytes": len(data),
+        "lines": data.count(b"\n"),
+    }
+
+
+def sample_lines(lines: list[str]) -> dict[int, str]:
+    """The lines kept of a large file, by their 0-based line number."""
+    keep = set(range(0, len(lines), SAMPLE_EVERY)) | ({len(lines) - 1} if lines else set())
+    return {i: lines[i] for i in sorted(keep)}
+
+
+def kept_lines(name: str, file: str) -> dict[int, str]:
+    """The recorded lines of ``file`` of run ``name``: all of them, or its sample."""
+    whole = RECORDED / name / file
+    if whole.exists():
+        return dict(enumerate(whole.read_text().splitlines()))
+    out = {}
+    for row in (RECORDED / name / f"{file}.sample").read_text().splitlines():
+        number, _, line = row.partition("\t")
+        out[int(number)] = line
+    return out
+
+
+def machine() -> dict[str, object]:
+    """What decides whether outputs can be compared byte for byte: the CPU (model and
+    instruction-set flags), the Python and the numerical libraries' versions."""
+    model, flags = "", ""
+    with contextlib.suppress(OSError):
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() == "model name" and not model:
+                model = value.strip()
+            if key.strip() == "flags" and not flags:
+                flags = " ".join(sorted(value.split()))
+    versions = {}
+    for name in LIBRARIES:
+        try:
+            versions[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            versions[name] = None
+    return {
+        "arch": platform.machine(),
+        "cpu": model,
+        "cpu_flags_sha256": hashlib.sha256(flags.encode()).hexdigest()[:16],
+        "python": platform.python_version(),
+        "libraries": versions,
+    }
+
+
+def plan_costs(plan_json: Path) -> dict[str, object]:
+    """The figures of plan.json that the search defines exactly."""
+    record = json.loads(plan_json.read_text())
+    return {k: record[k] for k in ("grid_cost_m", "start_cell", "goal_cell") if k in record}
+
+
+@contextlib.contextmanager
+def _locked(path: Path) -> Iterator[None]:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("a") as handle:
+        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            yield
+        finally:
+            fcntl.flock(handle, fcntl.LOCK_UN)
+
+
+def run_in_process(argv: list[str]) -> tuple[int, str]:
+    """``slamcli ARGV`` through the CLI's entry point, in this process: exit code and output."""
+    from typer.testing import CliRunner
+
+    from slamcli.cli.app import app
+
+    result = CliRunner().invoke(app, argv)
+    return result.exit_code, result.output
+
+
+def run_once(name: str, root: Path) -> Path:
+    """The run folder of reference run ``name`` under ``root``, made the first time any test
+    process of the session asks for it (the others wait for it, then read it)."""
+    out = root / name
+    done = root / f"{name}.done"
+    with _locked(root / f"{name}.lock"):
+        if not done.exists():
+            if out.exists():
+                shutil.rmtree(out)
+            code, output = run_in_process(RUNS[name].command(out))
+            done.write_text(json.dumps({"exit_code": code, "output": output}))
+    status = json.loads(done.read_text())
+    if status["exit_code"] != 0:
+        raise RuntimeError(
+            f"reference run {name} exited {status['exit_code']}:\n{status['output']}"
+        )
+    return out
+
+
+def record(names: list[str]) -> None:
+    """Run ``names`` into a scratch folder and keep their compared files in tests/reference/."""
+    import tempfile
+
+    commit = subprocess.run(
+        ["git", "rev-parse", "HEAD"], cwd=REPO, capture_output=True, text=True, check=True
+    ).stdout.strip()
+    index_path = RECORDED / "recorded.json"
+    index = json.loads(index_path.read_text()) if index_path.exists() else {"runs": {}}
+    with tempfile.TemporaryDirectory() as scratch:
+        for name in names:
+            spec = RUNS[name]
+            out = Path(scratch) / name
+            code, output = run_in_process(spec.command(out))
+            if code != 0:
+                raise SystemExit(f"{name}: exit code {code}\n{output}")
+            keep = RECORDED / name
+            if keep.exists():
+                shutil.rmtree(keep)
+            keep.mkdir(parents=True)
+            digests = {}
+            for file in spec.files:
+                digests[file] = digest(out / file)
+                if (out / file).stat().st_size <= KEEP_WHOLE_BYTES:
+                    shutil.copyfile(out / file, keep / file)
+                else:
+                    lines = (out / file).read_text().splitlines()
+                    sample = sample_lines(lines)
+                    (keep / f"{file}.sample").write_text(
+                        "".join(f"{i}\t{line}\n" for i, line in sample.items())
+                    )
+            (keep / DIGESTS).write_text(json.dumps(digests, indent=1, sort_keys=True) + "\n")
+            if (out / "plan.json").exists():
+                (keep / PLAN_COST).write_text(
+                    json.dumps(plan_costs(out / "plan.json"), indent=1) + "\n"
+                )
+            index["runs"][name] = {
+                "command": ["slamcli", *spec.argv, "--out", "OUT"],
+                "commit": commit,
+            }
+            print(f"recorded {name}")
+    index["machine"] = machine()
+    index_path.write_text(json.dumps(index, indent=1, sort_keys=True) + "\n")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description="Record the reference runs' outputs.")
+    parser.add_argument("names", nargs="*", help="runs to record (default: all)")
+    args = parser.parse_args()
+    unknown = [n for n in args.names if n not in RUNS]
+    if unknown:
+        raise SystemExit(f"unknown runs {unknown}; known: {', '.join(RUNS)}")
+    record(args.names or list(RUNS))
+
+
+if __name__ == "__main__":
+    main()
