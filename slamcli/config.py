@@ -31,6 +31,8 @@ in a Google-style ``Attributes:`` section of the class docstring is used), ``uni
 ``min`` / ``max`` (inclusive bounds), ``gt`` / ``lt`` (exclusive bounds) and ``choices`` (the
 allowed values). Bounds apply to every element of a tuple. A value outside them raises
 :class:`~slamcli.errors.ConfigError` naming the dotted key, the value and the allowed range.
+Settings made in code (a command's options) are checked against the same metadata by
+:func:`check_settings`, which names each field as the caller says (its option).
 """
 
 from __future__ import annotations
@@ -140,10 +142,7 @@ def dump_config(instance: Any, section_name: str) -> str:
     if doc:
         lines.append("# " + _plain(doc.splitlines()[0]))
     lines.append(f"[{section_name}]")
-    # Fields inherited from a shared base class are documented in the base's docstring.
-    attribute_docs: dict[str, str] = {}
-    for cls in reversed(type(instance).__mro__):
-        attribute_docs.update(_attribute_docs(inspect.cleandoc(cls.__doc__ or "")))
+    attribute_docs = _class_attribute_docs(type(instance))
     for f in dataclasses.fields(instance):
         if not f.init:
             continue
@@ -156,6 +155,46 @@ def dump_config(instance: Any, section_name: str) -> str:
         else:
             lines.append(f"{f.name} = {_toml_value(value)}")
     return "\n".join(lines) + "\n"
+
+
+def check_settings(instance: T, names: Mapping[str, str] | None = None) -> T:
+    """``instance`` itself once every field's value has the field's type and lies in its range.
+
+    :func:`load_config` checks what it reads; this checks settings made in code, such as a
+    command's options passed straight to a dataclass. A ``None`` in a ``T | None`` field is
+    accepted.
+
+    Args:
+        instance: a dataclass instance whose fields declare their ranges (:func:`setting`).
+        names: what the message calls a field, e.g. ``{"resolution_m": "--resolution"}`` for
+            the command-line option that sets it; other fields go by their field name.
+
+    Raises:
+        ConfigError: ``"--resolution: expected a number > 0 (m), got 0"``, with the field's
+            help text (else its entry in the class docstring's ``Attributes:``) as the hint.
+    """
+    if not dataclasses.is_dataclass(instance) or isinstance(instance, type):
+        raise TypeError(f"check_settings needs a dataclass instance, got {type(instance).__name__}")
+    names = names or {}
+    docs = _class_attribute_docs(type(instance))
+    for name, (f, tp) in _fields(type(instance)).items():
+        value = getattr(instance, name)
+        if value is None and _is_optional(tp):
+            continue
+        # Tuple settings arrive from TOML as lists, the form the converter checks.
+        raw = list(value) if isinstance(value, tuple) else value
+        hint = f.metadata.get("help") or docs.get(name) or None
+        _checked_value(f, tp, raw, names.get(name, name), hint)
+    return instance
+
+
+def _class_attribute_docs(cls: type[Any]) -> dict[str, str]:
+    """Help text per field from the ``Attributes:`` sections of ``cls`` and its bases (fields
+    inherited from a shared base class are documented in the base's docstring)."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        docs.update(_attribute_docs(inspect.cleandoc(klass.__doc__ or "")))
+    return docs
 
 
 def _fields(section_cls: type[Any]) -> dict[str, tuple[dataclasses.Field[Any], Any]]:
@@ -269,11 +308,18 @@ def _check(
     if key not in fields:
         _unknown_key(fields, section_name, key, where)
     f, tp = fields[key]
+    return _checked_value(f, tp, raw, where, f.metadata.get("help") or _dump_hint(section_name))
+
+
+def _checked_value(
+    f: dataclasses.Field[Any], tp: Any, raw: Any, where: str, hint: str | None
+) -> Any:
+    """``raw`` converted to type ``tp`` when it lies in ``f``'s range, else a ConfigError
+    naming ``where``."""
     value = _convert(tp, raw)
     if value is _BAD or not _in_range(f.metadata, value):
         raise ConfigError(
-            f"{where}: expected {_expected(f, tp)}, got {_toml_value(raw)}",
-            hint=f.metadata.get("help") or _dump_hint(section_name),
+            f"{where}: expected {_expected(f, tp)}, got {_toml_value(raw)}", hint=hint
         )
     return value
 
@@ -463,4 +509,4 @@ def _toml_value(value: Any) -> str:
     return json.dumps(str(value))
 
 
-__all__ = ["dump_config", "load_config", "setting"]
+__all__ = ["check_settings", "dump_config", "load_config", "setting"]

@@ -13,7 +13,7 @@ import pytest
 from typer.testing import CliRunner
 
 from slamcli.cli.app import app
-from slamcli.config import dump_config, load_config, setting
+from slamcli.config import check_settings, dump_config, load_config, setting
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.pipelines import PIPELINES, get_pipeline
 
@@ -144,6 +144,25 @@ def test_later_sets_win() -> None:
 def test_bad_values_name_the_dotted_key_value_and_range(assignment: str, pattern: str) -> None:
     with pytest.raises(ConfigError, match=f"^--set {pattern}$"):
         load_config(Section, "demo", sets=[assignment])
+
+
+def test_check_settings_names_the_option_and_takes_the_docstring_as_hint() -> None:
+    ok = Section(depth_factor=None, iterations=(4, 2))
+    assert check_settings(ok) is ok
+    with pytest.raises(
+        ConfigError, match=r"^--voxel: expected a number in \(0, 0\.5\] \(m\), got 0$"
+    ):
+        check_settings(Section(voxel_m=0), {"voxel_m": "--voxel"})
+    with pytest.raises(
+        ConfigError, match=r"^iterations: expected a list of integers >= 1, got \[3, 0\]$"
+    ):
+        check_settings(Section(iterations=(3, 0)))
+    with pytest.raises(ConfigError, match=r"^voxel_m: .*got nan$") as info:
+        check_settings(Section(voxel_m=float("nan")))
+    assert info.value.hint == "TSDF voxel edge"
+    with pytest.raises(ConfigError, match=r"^note: expected a string, got 3$") as info:
+        check_settings(Section(note=3))  # type: ignore[arg-type]
+    assert info.value.hint == "free text, described only in this docstring."
 
 
 def test_bad_value_in_file_names_the_file_and_key(tmp_path: Path) -> None:

@@ -53,6 +53,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.config import check_settings, setting
 from slamcli.errors import ConfigError, InputError
 from slamcli.formats.run_folder import RunRecord, read_run
 from slamcli.geometry.camera import undistort_points, unproject
@@ -99,43 +100,38 @@ class MapSettings:
         seed: RANSAC's seed.
     """
 
-    resolution_m: float = 0.05
-    height_band_m: tuple[float, float] = (0.1, 1.5)
-    pixel_step: int = 4
-    frame_step: int = 1
-    max_depth_m: float = 5.0
-    pose_max_dt_s: float = 0.02
-    landmark_radius_m: float = 0.2
-    robot_radius_m: float = 0.2
-    margin_m: float = 0.25
+    resolution_m: float = setting(0.05, unit="m", gt=0.0)
+    height_band_m: tuple[float, float] = setting((0.1, 1.5), unit="m")
+    pixel_step: int = setting(4, min=1)
+    frame_step: int = setting(1, min=1)
+    max_depth_m: float = setting(5.0, unit="m", gt=0.0)
+    pose_max_dt_s: float = setting(0.02, unit="s", gt=0.0)
+    landmark_radius_m: float = setting(0.2, unit="m", min=0.0)
+    robot_radius_m: float = setting(0.2, unit="m", min=0.0)
+    margin_m: float = setting(0.25, unit="m", min=0.0)
     seed: int = 0
 
     def checked(self) -> MapSettings:
-        """These settings, or ConfigError naming the option that is out of range."""
-        for name, value in (
-            ("--resolution", self.resolution_m),
-            ("--max-depth", self.max_depth_m),
-            ("pose_max_dt_s", self.pose_max_dt_s),
-        ):
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"{name}: must be a number > 0, got {value!r}")
-        for name, value in (
-            ("--landmark-radius", self.landmark_radius_m),
-            ("--robot-radius", self.robot_radius_m),
-            ("margin_m", self.margin_m),
-        ):
-            if not (math.isfinite(value) and value >= 0):
-                raise ConfigError(f"{name}: must be a number >= 0, got {value!r}")
-        for name, step in (("--pixel-step", self.pixel_step), ("--frame-step", self.frame_step)):
-            if int(step) != step or step < 1:
-                raise ConfigError(f"{name}: must be an integer >= 1, got {step!r}")
+        """These settings, or ConfigError naming the option (or field) that is out of range."""
         lo, hi = self.height_band_m
-        if not (math.isfinite(lo) and math.isfinite(hi) and lo < hi):
+        # Before the field checks: a NaN band fails here, with the example to follow.
+        if not lo < hi:
             raise ConfigError(
                 f"--height-band: needs zmin < zmax (metres above the floor), got {lo:g},{hi:g}",
                 hint="for example --height-band 0.1,1.5",
             )
-        return self
+        return check_settings(self, _MAP_OPTIONS)
+
+
+_MAP_OPTIONS = {
+    "resolution_m": "--resolution",
+    "height_band_m": "--height-band",
+    "pixel_step": "--pixel-step",
+    "frame_step": "--frame-step",
+    "landmark_radius_m": "--landmark-radius",
+    "robot_radius_m": "--robot-radius",
+}
+"""The ``slamcli map build`` option that sets each of :class:`MapSettings`' fields."""
 
 
 def parse_height_band(text: str) -> tuple[float, float]:
