@@ -249,22 +249,40 @@ def simulate_landmark_world(
     poses = integrate_unicycle(start, controls, dt)
     lap_path = integrate_unicycle(start, lap, dt)[:, :2]
 
-    rng_world = np.random.default_rng([seed, 0])
+    marks = _place_landmarks(np.random.default_rng([seed, 0]), lap_path, landmarks)
     rng_odo = np.random.default_rng([seed, 1])
     rng_meas = np.random.default_rng([seed, 2])
-    marks = _place_landmarks(rng_world, lap_path, landmarks)
+    return _drive(poses, controls, marks, sensor, seed, rng_odo, rng_meas)
 
+
+def _drive(
+    poses: F64,
+    controls: F64,
+    marks: F64,
+    sensor: LandmarkSensor,
+    seed: int,
+    rng_odo: np.random.Generator,
+    rng_meas: np.random.Generator,
+) -> LandmarkWorld:
+    """One robot's run along ``poses``: its odometry and its observations of the landmarks.
+
+    Args:
+        poses: (K + 1, 3) true x, y (m), heading (rad), one per odometry stamp and the last.
+        controls: (K, 2) true v (m/s), omega (rad/s) that drove them.
+        marks: (N, 2) landmark positions, m.
+        sensor, seed: as recorded in the world.
+        rng_odo: draws the odometry scale factors, then the odometry white noise.
+        rng_meas: draws the observations (see :func:`_observe`).
+    """
     scale = 1.0 + rng_odo.normal(0.0, [sensor.v_bias_sigma, sensor.omega_bias_sigma])
     white = rng_odo.normal(0.0, [sensor.v_sigma, sensor.omega_sigma], controls.shape)
-    odometry = controls * scale + white
-
     at = _measurement_steps(len(poses), sensor)
     index, ids, ranges, bearings = _observe(poses, at, marks[None], sensor, rng_meas)
     return LandmarkWorld(
-        stamps_ns=_stamps(len(poses), dt),
+        stamps_ns=_stamps(len(poses), 1.0 / sensor.odometry_hz),
         poses=poses,
         controls=controls,
-        odometry=odometry,
+        odometry=controls * scale + white,
         landmarks=marks,
         meas_index=index,
         meas_ids=ids,
@@ -404,7 +422,6 @@ def simulate_multi_robot_world(
     clockwise = np.arange(robots) % 2 == 1
     n_lap = len(lap)
     at = _measurement_steps(steps + 1, sensor)
-    stamps = _stamps(steps + 1, dt)
     paths, controls_all = [], []
     for k in range(robots):
         o = round(fraction[k] * n_lap) % n_lap
@@ -423,27 +440,8 @@ def simulate_multi_robot_world(
     worlds, sightings = [], []
     for k in range(robots):
         rng_odo = np.random.default_rng([seed, 1, k])
-        scale = 1.0 + rng_odo.normal(0.0, [sensor.v_bias_sigma, sensor.omega_bias_sigma])
-        white = rng_odo.normal(0.0, [sensor.v_sigma, sensor.omega_sigma], controls_all[k].shape)
-        index, ids, ranges, bearings = _observe(
-            paths[k], at, marks[None], sensor, np.random.default_rng([seed, 2, k])
-        )
-        worlds.append(
-            LandmarkWorld(
-                stamps_ns=stamps,
-                poses=paths[k],
-                controls=controls_all[k],
-                odometry=controls_all[k] * scale + white,
-                landmarks=marks,
-                meas_index=index,
-                meas_ids=ids,
-                meas_range=ranges,
-                meas_bearing=bearings,
-                odometry_scale=scale,
-                sensor=sensor,
-                seed=seed,
-            )
-        )
+        rng_meas = np.random.default_rng([seed, 2, k])
+        worlds.append(_drive(paths[k], controls_all[k], marks, sensor, seed, rng_odo, rng_meas))
         others = np.delete(np.arange(robots), k)
         s_index, seen, s_range, s_bearing = _observe(
             paths[k],
@@ -607,78 +605,11 @@ def _generate_multi_robot(
 
         marks = world.robots[0].landmarks
         subject0 = landmark_subject0(robots)
-        subjects = list(range(1, robots + 1)) + [subject0 + i for i in range(len(marks))]
-        files = [
-            write("Barcodes.dat", "Subject #    Barcode #", [f"{s}\t{s}" for s in subjects]),
-            write(
-                "Landmark_Groundtruth.dat",
-                "Subject #    x [m]    y [m]    x std-dev [m]    y std-dev [m]",
-                [
-                    f"{subject0 + i}\t{x:.6f}\t{y:.6f}\t0.000000\t0.000000"
-                    for i, (x, y) in enumerate(marks)
-                ],
-            ),
-        ]
+        files = [write(*table) for table in _mrclam_landmark_files(robots, subject0, marks)]
         per_robot = []
         for k, (w, seen) in enumerate(zip(world.robots, world.sightings, strict=True)):
-            number = k + 1
-            stamps = [format_stamp(t, 6) for t in w.stamps_ns]
-            files.append(
-                write(
-                    f"Robot{number}_Odometry.dat",
-                    "Time [s]    forward velocity [m/s]    angular velocity [rad/s]",
-                    [f"{stamps[i]}\t{v:.6f}\t{om:.6f}" for i, (v, om) in enumerate(w.odometry)],
-                )
-            )
-            index = np.concatenate([w.meas_index, seen.index])
-            barcode = np.concatenate([w.meas_ids + subject0, seen.robot])
-            rng = np.concatenate([w.meas_range, seen.range])
-            bearing = np.concatenate([w.meas_bearing, seen.bearing])
-            order = np.lexsort((barcode, index))
-            files.append(
-                write(
-                    f"Robot{number}_Measurement.dat",
-                    "Time [s]    Subject #    range [m]    bearing [rad]",
-                    [
-                        f"{stamps[index[i]]}\t{barcode[i]}\t{rng[i]:.6f}\t{bearing[i]:.6f}"
-                        for i in order.tolist()
-                    ],
-                )
-            )
-            files.append(
-                write(
-                    f"Robot{number}_Groundtruth.dat",
-                    "Time [s]    x [m]    y [m]    orientation [rad]",
-                    [
-                        f"{stamps[i]}\t{x:.6f}\t{y:.6f}\t{th:.6f}"
-                        for i, (x, y, th) in enumerate(
-                            np.column_stack([w.poses[:, :2], _wrap(w.poses[:, 2])])
-                        )
-                    ],
-                )
-            )
-            summary = _summary(w)
-            per_robot.append(
-                {
-                    "robot": number,
-                    "start_pose": [float(v) for v in w.poses[0, :2]]
-                    + [float(_wrap(w.poses[:1, 2])[0])],
-                    "start_lap_fraction": float(world.start_fraction[k]),
-                    "clockwise": bool(world.clockwise[k]),
-                    "odometry_scale": {
-                        "v": float(w.odometry_scale[0]),
-                        "omega": float(w.odometry_scale[1]),
-                    },
-                    "odometry": summary["odometry"],
-                    "measurements": summary["measurements"],
-                    "sightings": len(seen.index),
-                    "sightings_of": {
-                        str(r): int(c)
-                        for r, c in zip(*np.unique(seen.robot, return_counts=True), strict=True)
-                    },
-                    "path_length_m": summary["path_length_m"],
-                }
-            )
+            files += [write(*table) for table in _mrclam_robot_files(k + 1, w, seen, subject0)]
+            per_robot.append(_robot_summary(world, k))
         first = world.robots[0]
         meta = {
             "format": "slamcli-landmarks-mrclam",
@@ -717,3 +648,85 @@ def _generate_multi_robot(
         result["files"] = [str(p) for p in files]
     log.info("wrote a %d-robot, %d-landmark MRCLAM folder into %s", robots, landmarks, run.path)
     return result
+
+
+_Table = tuple[str, str, list[str]]
+"""An MRCLAM file: its name, the column line of its header, its rows."""
+
+
+def _mrclam_landmark_files(robots: int, subject0: int, marks: F64) -> list[_Table]:
+    """``Barcodes.dat`` and ``Landmark_Groundtruth.dat`` of ``robots`` robots and the (N, 2)
+    landmarks ``marks`` (m), landmark i being subject ``subject0 + i``."""
+    subjects = list(range(1, robots + 1)) + [subject0 + i for i in range(len(marks))]
+    return [
+        ("Barcodes.dat", "Subject #    Barcode #", [f"{s}\t{s}" for s in subjects]),
+        (
+            "Landmark_Groundtruth.dat",
+            "Subject #    x [m]    y [m]    x std-dev [m]    y std-dev [m]",
+            [
+                f"{subject0 + i}\t{x:.6f}\t{y:.6f}\t0.000000\t0.000000"
+                for i, (x, y) in enumerate(marks)
+            ],
+        ),
+    ]
+
+
+def _mrclam_robot_files(
+    number: int, w: LandmarkWorld, seen: Sightings, subject0: int
+) -> list[_Table]:
+    """Robot ``number``'s odometry, measurements (landmarks and robots seen, by stamp then
+    barcode) and ground truth."""
+    stamps = [format_stamp(t, 6) for t in w.stamps_ns]
+    index = np.concatenate([w.meas_index, seen.index])
+    barcode = np.concatenate([w.meas_ids + subject0, seen.robot])
+    rng = np.concatenate([w.meas_range, seen.range])
+    bearing = np.concatenate([w.meas_bearing, seen.bearing])
+    order = np.lexsort((barcode, index))
+    return [
+        (
+            f"Robot{number}_Odometry.dat",
+            "Time [s]    forward velocity [m/s]    angular velocity [rad/s]",
+            [f"{stamps[i]}\t{v:.6f}\t{om:.6f}" for i, (v, om) in enumerate(w.odometry)],
+        ),
+        (
+            f"Robot{number}_Measurement.dat",
+            "Time [s]    Subject #    range [m]    bearing [rad]",
+            [
+                f"{stamps[index[i]]}\t{barcode[i]}\t{rng[i]:.6f}\t{bearing[i]:.6f}"
+                for i in order.tolist()
+            ],
+        ),
+        (
+            f"Robot{number}_Groundtruth.dat",
+            "Time [s]    x [m]    y [m]    orientation [rad]",
+            [
+                f"{stamps[i]}\t{x:.6f}\t{y:.6f}\t{th:.6f}"
+                for i, (x, y, th) in enumerate(
+                    np.column_stack([w.poses[:, :2], _wrap(w.poses[:, 2])])
+                )
+            ],
+        ),
+    ]
+
+
+def _robot_summary(world: MultiRobotWorld, k: int) -> dict[str, Any]:
+    """``world.json``'s entry for robot ``k + 1``."""
+    w, seen = world.robots[k], world.sightings[k]
+    summary = _summary(w)
+    return {
+        "robot": k + 1,
+        "start_pose": [float(v) for v in w.poses[0, :2]] + [float(_wrap(w.poses[:1, 2])[0])],
+        "start_lap_fraction": float(world.start_fraction[k]),
+        "clockwise": bool(world.clockwise[k]),
+        "odometry_scale": {
+            "v": float(w.odometry_scale[0]),
+            "omega": float(w.odometry_scale[1]),
+        },
+        "odometry": summary["odometry"],
+        "measurements": summary["measurements"],
+        "sightings": len(seen.index),
+        "sightings_of": {
+            str(r): int(c) for r, c in zip(*np.unique(seen.robot, return_counts=True), strict=True)
+        },
+        "path_length_m": summary["path_length_m"],
+    }
