@@ -150,73 +150,24 @@ def bundle_adjust(
         camera,
         cam_from_world,
         points,
-        obs_frame,
-        obs_point,
-        obs_uv,
-        obs_sigma_px,
+        (obs_frame, obs_point, obs_uv, obs_sigma_px),
         fixed_frames,
         fixed_points,
     )
-    if not (np.isfinite(robust_px) and robust_px > 0.0):
-        raise ValueError(f"bundle_adjust: robust_px must be a positive number, got {robust_px}")
-    if robust_loss not in ("huber", "cauchy"):
-        raise ValueError(
-            f"bundle_adjust: robust_loss must be 'huber' or 'cauchy', got {robust_loss!r}"
-        )
-    if max_iterations < 1:
-        raise ValueError(f"bundle_adjust: max_iterations must be >= 1, got {max_iterations}")
-
+    _check_options(robust_px, robust_loss, max_iterations)
     if obs_depth is not None:
-        depth = np.asarray(obs_depth, dtype=np.float64).reshape(-1)
-        if depth.shape != prob.obs_frame.shape:
-            raise ValueError(
-                f"bundle_adjust: obs_depth must be ({prob.obs_frame.size},), got {depth.shape}"
-            )
-        prob = _with_stereo(prob, depth, baseline_m)
+        prob = _with_stereo(prob, _check_depth(obs_depth, prob), baseline_m)
     chi2_before = _chi2(prob, prob.poses, prob.points)
-    fixed_f = prob.fixed_frames.copy()
-    observed_f = np.zeros(prob.poses.shape[0], dtype=bool)
-    observed_f[prob.obs_frame] = True
-    if fix_gauge and not fixed_f.any() and not prob.fixed_points.any():
-        fixed_f[int(np.argmax(observed_f))] = True
-
-    free_f = observed_f & ~fixed_f
-    observed_p = np.zeros(prob.points.shape[0], dtype=bool)
-    observed_p[prob.obs_point] = True
-    free_p = observed_p & ~prob.fixed_points
-    poses, pts = prob.poses.copy(), prob.points.copy()
-    iterations = 0
-    if free_f.any() or free_p.any():
-        poses, pts, iterations = _solve_colmap(
-            prob, fixed_f & observed_f, robust_px, robust_loss, max_iterations
-        )
-        # COLMAP keeps a pose as a quaternion, and the matrix round trip changes the last bits:
-        # fixed and unobserved frames (and points) are handed back as they came.
-        poses[~free_f] = prob.poses[~free_f]
-        pts[~free_p] = prob.points[~free_p]
-        # Depth fixes the scale itself; without it, the input's scale is kept.
-        if (
-            fix_gauge
-            and prob.right is None
-            and np.count_nonzero(fixed_f & observed_f) < 2
-            and not prob.fixed_points.any()
-        ):
-            poses, pts = _restore_scale(prob.poses, poses, pts, fixed_f & observed_f, free_f)
-
+    poses, pts, iterations = _refine(prob, fix_gauge, robust_px, robust_loss, max_iterations)
     chi2_after = _chi2(prob, poses, pts)
     rho = _huber if robust_loss == "huber" else _cauchy
     gate: F64 = np.full(chi2_after.shape, CHI2_INLIER)
-    if prob.right is not None and prob.right_of is not None:
-        m = prob.n_obs
-        right_of = prob.right_of
-        # Fold each right-camera residual into its observation.
-        chi2_obs = chi2_after[:m].copy()
-        np.add.at(chi2_obs, right_of, chi2_after[m:])
-        before_obs = chi2_before[:m].copy()
-        np.add.at(before_obs, right_of, chi2_before[m:])
+    if prob.right_of is not None:
+        right_of, m = prob.right_of, prob.n_obs
+        chi2_after = _fold_right(chi2_after, right_of, m)
+        chi2_before = _fold_right(chi2_before, right_of, m)
         gate = np.full(m, CHI2_INLIER)
         gate[right_of] = CHI2_STEREO
-        chi2_after, chi2_before = chi2_obs, before_obs
     return BundleResult(
         cam_from_world=poses,
         points=pts,
@@ -227,6 +178,52 @@ def bundle_adjust(
         iterations=iterations,
         ms=(time.perf_counter() - start) * 1e3,
     )
+
+
+def _refine(
+    prob: _Problem, fix_gauge: bool, robust_px: float, robust_loss: str, max_iterations: int
+) -> tuple[F64, F64, int]:
+    """Fix the gauge, solve, and hand fixed and unobserved frames and points back unchanged.
+
+    Returns:
+        (K, 4, 4) poses, (P, 3) points, and the iterations Ceres ran (0 when nothing is free).
+    """
+    fixed_f = prob.fixed_frames.copy()
+    observed_f = np.zeros(prob.poses.shape[0], dtype=bool)
+    observed_f[prob.obs_frame] = True
+    if fix_gauge and not fixed_f.any() and not prob.fixed_points.any():
+        fixed_f[int(np.argmax(observed_f))] = True
+
+    free_f = observed_f & ~fixed_f
+    observed_p = np.zeros(prob.points.shape[0], dtype=bool)
+    observed_p[prob.obs_point] = True
+    free_p = observed_p & ~prob.fixed_points
+    if not (free_f.any() or free_p.any()):
+        return prob.poses.copy(), prob.points.copy(), 0
+    poses, pts, iterations = _solve_colmap(
+        prob, fixed_f & observed_f, robust_px, robust_loss, max_iterations
+    )
+    # COLMAP keeps a pose as a quaternion, and the matrix round trip changes the last bits:
+    # fixed and unobserved frames (and points) are handed back as they came.
+    poses[~free_f] = prob.poses[~free_f]
+    pts[~free_p] = prob.points[~free_p]
+    # Depth fixes the scale itself; without it, the input's scale is kept.
+    if (
+        fix_gauge
+        and prob.right is None
+        and np.count_nonzero(fixed_f & observed_f) < 2
+        and not prob.fixed_points.any()
+    ):
+        poses, pts = _restore_scale(prob.poses, poses, pts, fixed_f & observed_f, free_f)
+    return poses, pts, iterations
+
+
+def _fold_right(chi2: F64, right_of: I64, m: int) -> F64:
+    """(M,) chi2 per observation from the (M + R,) of the stereo problem: each right-camera
+    residual (rows ``m..``) added to its observation's (``right_of``)."""
+    folded = chi2[:m].copy()
+    np.add.at(folded, right_of, chi2[m:])
+    return folded
 
 
 # -- validation ---------------------------------------------------------------------------------
@@ -278,15 +275,16 @@ def _check_problem(
     camera: PinholeCamera,
     cam_from_world: ArrayLike,
     points: ArrayLike,
-    obs_frame: ArrayLike,
-    obs_point: ArrayLike,
-    obs_uv: ArrayLike,
-    obs_sigma_px: ArrayLike,
+    observations: tuple[ArrayLike, ArrayLike, ArrayLike, ArrayLike],
     fixed_frames: ArrayLike,
     fixed_points: ArrayLike | None,
 ) -> _Problem:
-    """Validate the arrays of :func:`bundle_adjust` and return them normalised (copies)."""
+    """Validate the arrays of :func:`bundle_adjust` and return them normalised (copies).
+
+    ``observations`` are its ``obs_frame``, ``obs_point``, ``obs_uv`` and ``obs_sigma_px``.
+    """
     where = "bundle_adjust"
+    obs_frame, obs_point, obs_uv, obs_sigma_px = observations
     poses = np.array(cam_from_world, dtype=np.float64)
     pts = np.array(points, dtype=np.float64)
     if poses.ndim != 3 or poses.shape[1:] != (4, 4) or poses.shape[0] == 0:
@@ -328,6 +326,27 @@ def _check_problem(
         else _check_mask(fixed_points, "fixed_points", p)
     )
     return _Problem(camera, poses, pts, frame_idx, point_idx, uv, sigma, fixed_f, fixed_p)
+
+
+def _check_options(robust_px: float, robust_loss: str, max_iterations: int) -> None:
+    if not (np.isfinite(robust_px) and robust_px > 0.0):
+        raise ValueError(f"bundle_adjust: robust_px must be a positive number, got {robust_px}")
+    if robust_loss not in ("huber", "cauchy"):
+        raise ValueError(
+            f"bundle_adjust: robust_loss must be 'huber' or 'cauchy', got {robust_loss!r}"
+        )
+    if max_iterations < 1:
+        raise ValueError(f"bundle_adjust: max_iterations must be >= 1, got {max_iterations}")
+
+
+def _check_depth(obs_depth: ArrayLike, prob: _Problem) -> F64:
+    """(M,) depths (m) of the observations, NaN where none."""
+    depth = np.asarray(obs_depth, dtype=np.float64).reshape(-1)
+    if depth.shape != prob.obs_frame.shape:
+        raise ValueError(
+            f"bundle_adjust: obs_depth must be ({prob.obs_frame.size},), got {depth.shape}"
+        )
+    return depth
 
 
 def _check_index(values: ArrayLike, name: str, size: int) -> I64:
@@ -452,13 +471,50 @@ def _solve_colmap(
     """Build a pycolmap Reconstruction of the problem, solve it, read the result back."""
     import pycolmap
 
+    rec = pycolmap.Reconstruction()
+    config = pycolmap.BundleAdjustmentConfig()
+    levels, group = _add_rig(rec, prob)
+    frames, image_of_obs, idx_in_image = _add_images(
+        rec, config, prob, levels, group, constant_frames
+    )
+    pids, point_ids = _add_tracks(rec, config, prob, image_of_obs, idx_in_image)
+    options = _adjuster_options(robust_px, robust_loss, max_iterations)
+    adjuster = pycolmap.create_default_bundle_adjuster(options, config, rec)
+    # Typed as the backend-neutral summary; the Ceres backend's carries ``ceres_summary``.
+    summary: Any = adjuster.solve()
+    ceres_summary = summary.ceres_summary
+    if not summary.is_solution_usable():
+        logger.warning("bundle adjustment failed, input kept: %s", ceres_summary.message)
+        return prob.poses.copy(), prob.points.copy(), 0
+    # Ceres counts the evaluation at the start as a successful step.
+    steps = ceres_summary.num_successful_steps + ceres_summary.num_unsuccessful_steps
+    iterations = max(0, int(steps) - 1)
+
+    poses = prob.poses.copy()
+    for frame in frames:
+        pose: Any = rec.frame(frame + 1).rig_from_world  # Rigid3d | None; every frame has one
+        poses[frame, :3, :] = pose.matrix()
+    pts = prob.points.copy()
+    for j, pid in enumerate(pids.tolist()):
+        pts[pid] = rec.point3D(int(point_ids[j])).xyz
+    return poses, pts, iterations
+
+
+def _add_rig(rec: Any, prob: _Problem) -> tuple[F64, I64]:
+    """Add one camera per sigma group (and per eye) to ``rec``, all sensors of one rig.
+
+    Returns:
+        (G,) the sigma of each camera (camera ``g + 1``), and the (M,) camera index of each
+        observation.
+    """
+    import pycolmap
+
     cam = prob.camera
     levels, group = _sigma_groups(prob.obs_sigma)
     sides = 2 if prob.right is not None else 1
     if prob.right is not None:
         # Right-camera copies are groups of their own: camera G + g is group g's right eye.
         group = group + levels.size * prob.right.astype(np.int64)
-    rec = pycolmap.Reconstruction()
     rig = pycolmap.Rig(rig_id=1)
     sensors = []
     for side in range(sides):
@@ -487,10 +543,27 @@ def _solve_colmap(
                 sensor, pycolmap.Rigid3d(right_from_rig) if offset else pycolmap.Rigid3d()
             )
     rec.add_rig(rig)
-    levels = np.tile(levels, sides)
+    return np.tile(levels, sides), group
 
-    # One image per (frame, sigma group) that has observations; observations sorted so that
-    # each image's points2D are a contiguous run.
+
+def _add_images(
+    rec: Any,
+    config: Any,
+    prob: _Problem,
+    levels: F64,
+    group: I64,
+    constant_frames: BoolArray,
+) -> tuple[list[int], I64, I64]:
+    """Add the keyframes to ``rec`` and ``config``, each with one image per camera it observes
+    with (camera ``g + 1`` of sigma ``levels[g]``, ``group`` the (M,) camera of each observation).
+
+    Returns:
+        The frames added, and for each of the (M,) observations its image id and its index
+        among that image's points.
+    """
+    import pycolmap
+
+    # Observations sorted so that each image's points2D are a contiguous run.
     n_groups = levels.size
     key = prob.obs_frame * n_groups + group
     order = np.argsort(key, kind="stable")
@@ -516,7 +589,6 @@ def _solve_colmap(
         images.append((image, frame))
         frame_images.setdefault(frame, []).append(image)
 
-    config = pycolmap.BundleAdjustmentConfig()
     for frame, imgs in frame_images.items():
         colmap_frame = pycolmap.Frame(frame_id=frame + 1, rig_id=1)
         for image in imgs:
@@ -532,8 +604,20 @@ def _solve_colmap(
             config.set_constant_rig_from_world_pose(frame + 1)
     for g in range(n_groups):
         config.set_constant_cam_intrinsics(g + 1)
+    return list(frame_images), image_of_obs, idx_in_image
 
-    # Tracks: observations sorted by point.
+
+def _add_tracks(
+    rec: Any, config: Any, prob: _Problem, image_of_obs: I64, idx_in_image: I64
+) -> tuple[I64, I64]:
+    """Add the observed points with their tracks (see :func:`_add_images`) to ``rec`` and
+    ``config``.
+
+    Returns:
+        The (Q,) indices of the observed points and their (Q,) point ids in ``rec``.
+    """
+    import pycolmap
+
     by_point = np.argsort(prob.obs_point, kind="stable")
     pids, pfirst = np.unique(prob.obs_point[by_point], return_index=True)
     pbounds = np.append(pfirst, by_point.size)
@@ -550,6 +634,12 @@ def _solve_colmap(
             config.add_constant_point(int(point_ids[j]))
         else:
             config.add_variable_point(int(point_ids[j]))
+    return pids, point_ids
+
+
+def _adjuster_options(robust_px: float, robust_loss: str, max_iterations: int) -> Any:
+    """pycolmap bundle adjustment options: poses and points only, the robust loss, one thread."""
+    import pycolmap
 
     options = pycolmap.BundleAdjustmentOptions()
     options.refine_focal_length = False
@@ -576,23 +666,4 @@ def _solve_colmap(
     ceres.solver_options = solver
     ceres.min_num_residuals_for_cpu_multi_threading = 2**31 - 1
     options.ceres = ceres
-
-    adjuster = pycolmap.create_default_bundle_adjuster(options, config, rec)
-    # Typed as the backend-neutral summary; the Ceres backend's carries ``ceres_summary``.
-    summary: Any = adjuster.solve()
-    ceres_summary = summary.ceres_summary
-    if not summary.is_solution_usable():
-        logger.warning("bundle adjustment failed, input kept: %s", ceres_summary.message)
-        return prob.poses.copy(), prob.points.copy(), 0
-    # Ceres counts the evaluation at the start as a successful step.
-    steps = ceres_summary.num_successful_steps + ceres_summary.num_unsuccessful_steps
-    iterations = max(0, int(steps) - 1)
-
-    poses = prob.poses.copy()
-    for frame in frame_images:
-        pose: Any = rec.frame(frame + 1).rig_from_world  # Rigid3d | None; every frame has one
-        poses[frame, :3, :] = pose.matrix()
-    pts = prob.points.copy()
-    for j, pid in enumerate(pids.tolist()):
-        pts[pid] = rec.point3D(int(point_ids[j])).xyz
-    return poses, pts, iterations
+    return options
