@@ -14,7 +14,7 @@ from conftest import shared_path
 from typer.testing import CliRunner
 
 from slamcli.cli.merge import HELP, register
-from slamcli.errors import InputError
+from slamcli.errors import ConfigError, InputError
 from slamcli.formats.landmark_map import write_landmarks_csv
 from slamcli.formats.trajectory import write_tum
 from slamcli.geometry import planar_to_se3
@@ -164,6 +164,22 @@ def test_bad_inputs_name_the_folder(tmp_path: Path) -> None:
     assert res.exit_code == 1
     assert "bare" in res.stderr
     assert not (tmp_path / "m").exists()
+
+
+@pytest.mark.parametrize(
+    ("setting", "pattern"),
+    [
+        ({"match": "nearest"}, r'^--match: expected one of "auto", "ids", "constellation"'),
+        ({"inlier_m": 0.0}, r"^--inlier-m: expected a number > 0 \(m\), got 0\.0$"),
+        ({"sigma_floor_m": math.nan}, r"^sigma_floor_m: expected a number > 0 \(m\), got nan$"),
+        ({"min_common_ids": 1}, r"^min_common_ids: expected an integer >= 2, got 1$"),
+        ({"min_inliers": 2}, r"^min_inliers: expected an integer >= 3, got 2$"),
+        ({"max_hypotheses": 0}, r"^max_hypotheses: expected an integer >= 1, got 0$"),
+    ],
+)
+def test_bad_settings_name_the_option_and_range(setting: dict[str, object], pattern: str) -> None:
+    with pytest.raises(ConfigError, match=pattern):
+        MergeConfig(**setting).check()  # type: ignore[arg-type]
 
 
 def test_help_example_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:

@@ -49,7 +49,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from slamcli.errors import ConfigError, InputError
+from slamcli.config import check_settings, setting
+from slamcli.errors import InputError
 from slamcli.formats.run_folder import RunRecord, read_run
 from slamcli.geometry import interpolate_planar, planar_to_se3, se3_to_planar, wrap_angle
 from slamcli.rundir import RunDir, Timings, hash_input
@@ -85,32 +86,21 @@ class MergeConfig:
         max_iterations: Levenberg–Marquardt iterations.
     """
 
-    match: str = "auto"
-    inlier_m: float = 0.5
-    min_common_ids: int = 3
-    min_inliers: int = 5
-    max_hypotheses: int = 2000
-    sigma_floor_m: float = 0.02
-    default_sigma_m: float = 0.2
+    match: str = setting("auto", choices=("auto", "ids", "constellation"))
+    inlier_m: float = setting(0.5, unit="m", gt=0.0)
+    min_common_ids: int = setting(3, min=2)
+    min_inliers: int = setting(5, min=3)
+    max_hypotheses: int = setting(2000, min=1)
+    sigma_floor_m: float = setting(0.02, unit="m", gt=0.0)
+    default_sigma_m: float = setting(0.2, unit="m", gt=0.0)
     seed: int = 0
-    max_iterations: int = 100
+    max_iterations: int = setting(100, min=1)
 
     def check(self) -> MergeConfig:
-        """Self, or ConfigError naming the bad setting and its allowed range."""
-        if self.match not in ("auto", "ids", "constellation"):
-            raise ConfigError(f"match: expected auto, ids or constellation, got {self.match!r}")
-        for name in ("inlier_m", "sigma_floor_m", "default_sigma_m"):
-            value = getattr(self, name)
-            if not (math.isfinite(value) and value > 0):
-                raise ConfigError(f"{name}: expected a positive number of metres, got {value}")
-        if self.min_common_ids < 2 or self.min_inliers < 3:
-            raise ConfigError(
-                "min_common_ids must be >= 2 and min_inliers >= 3, got "
-                f"{self.min_common_ids} and {self.min_inliers}"
-            )
-        if self.max_hypotheses < 1 or self.max_iterations < 1:
-            raise ConfigError("max_hypotheses and max_iterations must be >= 1")
-        return self
+        """Self, or ConfigError naming the bad setting (by its option) and its allowed range."""
+        return check_settings(
+            self, {"match": "--match", "inlier_m": "--inlier-m", "seed": "--seed"}
+        )
 
 
 @dataclass(frozen=True)

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.config import check_settings, setting
 from slamcli.planning.costmap import check_nonnegative, check_positive
 
 SHARP_TURN_RAD = math.radians(60.0)
@@ -26,18 +27,29 @@ SHARP_TURN_RAD = math.radians(60.0)
 
 @dataclass(frozen=True)
 class Limits:
-    """Kinematic limits: speed (m/s), yaw rate (rad/s) and along-path acceleration (m/s²)."""
+    """Kinematic limits of the robot along a path.
 
-    max_speed: float = 0.5
-    max_yaw_rate: float = 1.0
-    max_accel: float = 0.5
+    Attributes:
+        max_speed: the fastest the robot drives, m/s.
+        max_yaw_rate: the fastest it turns, rad/s.
+        max_accel: the largest speed change per second along the path, m/s².
+    """
+
+    max_speed: float = setting(0.5, unit="m/s", gt=0.0)
+    max_yaw_rate: float = setting(1.0, unit="rad/s", gt=0.0)
+    max_accel: float = setting(0.5, unit="m/s²", gt=0.0)
 
     def checked(self) -> Limits:
         """These limits, or a ConfigError naming the bad option."""
-        check_positive("--max-speed", self.max_speed)
-        check_positive("--max-yaw-rate", self.max_yaw_rate)
-        check_positive("--max-accel", self.max_accel)
-        return self
+        return check_settings(self, _LIMIT_OPTIONS)
+
+
+_LIMIT_OPTIONS = {
+    "max_speed": "--max-speed",
+    "max_yaw_rate": "--max-yaw-rate",
+    "max_accel": "--max-accel",
+}
+"""The ``slamcli plan`` option that sets each of :class:`Limits`' fields."""
 
 
 @dataclass(frozen=True)
