@@ -222,20 +222,10 @@ def plot_landmark_run(
     seconds and NIS) with its 95 % band for 2 DoF, and ``series["landmarks"]`` (stamp, count).
     Series stamps in the estimate's clock are shown relative to its first pose.
     """
-    import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
-    from slamcli.geometry import interpolate_planar, se3_to_planar
-    from slamcli.planar_eval import nees_band
-
-    series = series or {}
-    ev = evaluation
     t0_ns = int(estimate.stamps_ns[0]) if len(estimate) else 0
-
-    def moved(xy: Any) -> Any:
-        return ev.transform_xy(xy) if ev is not None else xy
-
     # Fixed margins, not the constrained layout: that would measure every tick label twice
     # and double the drawing time of a large run.
     fig = Figure(figsize=(14, 7))
@@ -254,21 +244,48 @@ def plot_landmark_run(
     top = fig.add_subplot(grid[:, 0])
     upper = fig.add_subplot(grid[0, 1])
     lower = fig.add_subplot(grid[1, 1], sharex=upper)
+    _landmark_top_view(top, estimate, landmarks, evaluation, true_landmarks, dead_reckoning)
+    if evaluation is not None:
+        _error_panels(upper, lower, evaluation, dead_reckoning, t0_ns)
+    else:
+        _filter_panels(upper, lower, series or {}, t0_ns)
+    lower.set_xlabel("time since the first pose (s)")
+    if title:
+        fig.suptitle(title)
+    return save_png(fig, path)
 
-    # Top view.
+
+def _moved(ev: PlanarEval | None, xy: Any) -> Any:
+    """(N, 2) positions moved by the evaluation's SE(2) alignment, when there is one."""
+    return ev.transform_xy(xy) if ev is not None else xy
+
+
+def _landmark_top_view(
+    top: Any,
+    estimate: Trajectory,
+    landmarks: LandmarkMap | None,
+    ev: PlanarEval | None,
+    true_landmarks: LandmarkMap | None,
+    dead_reckoning: Trajectory | None,
+) -> None:
+    """The top view of :func:`plot_landmark_run`: paths, landmarks with 3σ ellipses, title."""
+    import numpy as np
+
     if ev is not None:
         g = _decimated(ev.gt[:, :2])
         top.plot(g[:, 0], g[:, 1], color="0.3", lw=1.4, ls="--", label="ground truth", zorder=2)
     if dead_reckoning is not None and len(dead_reckoning):
-        d = moved(_decimated(dead_reckoning.positions[:, :2]))
+        d = _moved(ev, _decimated(dead_reckoning.positions[:, :2]))
         top.plot(d[:, 0], d[:, 1], color="tab:orange", lw=0.7, alpha=0.8, label="dead reckoning")
-    est_xy = moved(_decimated(estimate.positions[:, :2])) if len(estimate) else np.zeros((0, 2))
+    est_xy = (
+        _moved(ev, _decimated(estimate.positions[:, :2])) if len(estimate) else np.zeros((0, 2))
+    )
     top.plot(est_xy[:, 0], est_xy[:, 1], color="tab:blue", lw=1.1, label="estimate", zorder=3)
     if len(est_xy):
         top.plot(*est_xy[0], marker="o", ms=8, mfc="none", mec="k", mew=1.5, ls="", label="start")
     n_lm = 0 if landmarks is None else len(landmarks)
     if landmarks is not None and n_lm:
-        lxy = moved(np.asarray(landmarks.xy, dtype=np.float64).reshape(-1, 2))
+        lxy = _moved(ev, np.asarray(landmarks.xy, dtype=np.float64).reshape(-1, 2))
         if landmarks.cov is not None:
             cov = np.asarray(landmarks.cov, dtype=np.float64).reshape(-1, 2, 2)
             _ellipses(
@@ -319,91 +336,104 @@ def plot_landmark_run(
     top.legend(loc="best", fontsize="small")
     top.grid(alpha=0.3)
 
-    if ev is not None:
-        t = (ev.stamps_ns - t0_ns) * 1e-9
-        upper.plot(
-            *_decimated(np.stack([t, ev.ate_m], axis=1)).T,
-            color="tab:blue",
-            lw=0.9,
-            label=f"estimate, rmse {ev.ate.rmse:.3f} m",
+
+def _error_panels(
+    upper: Any, lower: Any, ev: PlanarEval, dead_reckoning: Trajectory | None, t0_ns: int
+) -> None:
+    """With an evaluation: the position error over time (and the dead reckoning's) above, the
+    pose NEES below; times relative to ``t0_ns``."""
+    import numpy as np
+
+    from slamcli.geometry import interpolate_planar, se3_to_planar
+
+    t = (ev.stamps_ns - t0_ns) * 1e-9
+    upper.plot(
+        *_decimated(np.stack([t, ev.ate_m], axis=1)).T,
+        color="tab:blue",
+        lw=0.9,
+        label=f"estimate, rmse {ev.ate.rmse:.3f} m",
+    )
+    if dead_reckoning is not None and len(dead_reckoning) > 1:
+        dr = interpolate_planar(
+            dead_reckoning.stamps_ns,
+            se3_to_planar(dead_reckoning.world_from_body),
+            ev.stamps_ns,
         )
-        if dead_reckoning is not None and len(dead_reckoning) > 1:
-            dr = interpolate_planar(
-                dead_reckoning.stamps_ns,
-                se3_to_planar(dead_reckoning.world_from_body),
-                ev.stamps_ns,
+        dr_err = np.linalg.norm(ev.transform_xy(dr[:, :2]) - ev.gt[:, :2], axis=1)
+        ok = np.isfinite(dr_err)
+        if np.any(ok):
+            rmse = float(np.sqrt(np.mean(dr_err[ok] ** 2)))
+            upper.plot(
+                *_decimated(np.stack([t[ok], dr_err[ok]], axis=1)).T,
+                color="tab:orange",
+                lw=0.8,
+                label=f"dead reckoning (same alignment), rmse {rmse:.3f} m",
             )
-            dr_err = np.linalg.norm(ev.transform_xy(dr[:, :2]) - ev.gt[:, :2], axis=1)
-            ok = np.isfinite(dr_err)
-            if np.any(ok):
-                rmse = float(np.sqrt(np.mean(dr_err[ok] ** 2)))
-                upper.plot(
-                    *_decimated(np.stack([t[ok], dr_err[ok]], axis=1)).T,
-                    color="tab:orange",
-                    lw=0.8,
-                    label=f"dead reckoning (same alignment), rmse {rmse:.3f} m",
-                )
-                _log_y(upper)
-        upper.set_ylabel("position error (m)")
-        upper.set_title("Position error after SE(2) alignment")
-        upper.legend(loc="lower right", fontsize="small")
-        upper.grid(alpha=0.3)
-        if ev.nees is not None:
-            nees = ev.nees
-            verdict = "consistent" if nees.consistent else "inconsistent"
-            _chi2_panel(
-                lower,
-                (nees.stamps_ns - t0_ns) * 1e-9,
-                nees.values,
-                nees.band,
-                3,
-                f"NEES, mean {nees.mean:.2f}",
-                f"Pose NEES (3 DoF): {verdict}, {100 * nees.fraction_in_band:.0f} % in band",
-                {"lw": 0.7, "alpha": 0.6},
-            )
-        else:
-            _empty_panel(lower, "no pose covariances", "Pose NEES")
-        lower.set_ylabel("NEES")
-        lower.grid(alpha=0.3)
+            _log_y(upper)
+    upper.set_ylabel("position error (m)")
+    upper.set_title("Position error after SE(2) alignment")
+    upper.legend(loc="lower right", fontsize="small")
+    upper.grid(alpha=0.3)
+    if ev.nees is not None:
+        nees = ev.nees
+        verdict = "consistent" if nees.consistent else "inconsistent"
+        _chi2_panel(
+            lower,
+            (nees.stamps_ns - t0_ns) * 1e-9,
+            nees.values,
+            nees.band,
+            3,
+            f"NEES, mean {nees.mean:.2f}",
+            f"Pose NEES (3 DoF): {verdict}, {100 * nees.fraction_in_band:.0f} % in band",
+            {"lw": 0.7, "alpha": 0.6},
+        )
     else:
-        t0_s = t0_ns * 1e-9
-        nis = series.get("nis")
-        if nis is not None and len(nis):
-            nis = np.asarray(nis, dtype=np.float64).reshape(-1, 2)
-            lo, hi = nees_band(2)
-            inside = float(np.mean((nis[:, 1] >= lo) & (nis[:, 1] <= hi)))
-            _chi2_panel(
-                upper,
-                _series_time(nis, t0_s),
-                nis[:, 1],
-                (lo, hi),
-                2,
-                f"NIS, mean {np.mean(nis[:, 1]):.2f}",
-                f"Innovation NIS (2 DoF), {100 * inside:.0f} % in band",
-                {"ls": "", "marker": ".", "ms": 1.5, "alpha": 0.5},
-            )
-        else:
-            _empty_panel(upper, "no NIS series", "Innovation NIS")
-        upper.set_ylabel("NIS")
-        upper.grid(alpha=0.3)
-        counts = series.get("landmarks")
-        if counts is not None and len(counts):
-            counts = np.asarray(counts, dtype=np.float64).reshape(-1, 2)
-            lower.plot(
-                *_decimated(np.stack([_series_time(counts, t0_s), counts[:, 1]], axis=1)).T,
-                color="tab:green",
-                lw=1.0,
-                drawstyle="steps-post",
-            )
-            lower.set_title(f"Landmarks in the map ({int(counts[-1, 1])} at the end)")
-        else:
-            _empty_panel(lower, "no landmark count series", "Landmarks in the map")
-        lower.set_ylabel("landmarks")
-        lower.grid(alpha=0.3)
-    lower.set_xlabel("time since the first pose (s)")
-    if title:
-        fig.suptitle(title)
-    return save_png(fig, path)
+        _empty_panel(lower, "no pose covariances", "Pose NEES")
+    lower.set_ylabel("NEES")
+    lower.grid(alpha=0.3)
+
+
+def _filter_panels(upper: Any, lower: Any, series: dict[str, Any], t0_ns: int) -> None:
+    """Without an evaluation: the filter's NIS above and the landmark count below (see
+    :func:`plot_landmark_run` for ``series``)."""
+    import numpy as np
+
+    from slamcli.planar_eval import nees_band
+
+    t0_s = t0_ns * 1e-9
+    nis = series.get("nis")
+    if nis is not None and len(nis):
+        nis = np.asarray(nis, dtype=np.float64).reshape(-1, 2)
+        lo, hi = nees_band(2)
+        inside = float(np.mean((nis[:, 1] >= lo) & (nis[:, 1] <= hi)))
+        _chi2_panel(
+            upper,
+            _series_time(nis, t0_s),
+            nis[:, 1],
+            (lo, hi),
+            2,
+            f"NIS, mean {np.mean(nis[:, 1]):.2f}",
+            f"Innovation NIS (2 DoF), {100 * inside:.0f} % in band",
+            {"ls": "", "marker": ".", "ms": 1.5, "alpha": 0.5},
+        )
+    else:
+        _empty_panel(upper, "no NIS series", "Innovation NIS")
+    upper.set_ylabel("NIS")
+    upper.grid(alpha=0.3)
+    counts = series.get("landmarks")
+    if counts is not None and len(counts):
+        counts = np.asarray(counts, dtype=np.float64).reshape(-1, 2)
+        lower.plot(
+            *_decimated(np.stack([_series_time(counts, t0_s), counts[:, 1]], axis=1)).T,
+            color="tab:green",
+            lw=1.0,
+            drawstyle="steps-post",
+        )
+        lower.set_title(f"Landmarks in the map ({int(counts[-1, 1])} at the end)")
+    else:
+        _empty_panel(lower, "no landmark count series", "Landmarks in the map")
+    lower.set_ylabel("landmarks")
+    lower.grid(alpha=0.3)
 
 
 def save_png(fig: Any, path: str | Path) -> Path:
