@@ -30,7 +30,7 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypedDict
 
 import yaml
 
@@ -106,6 +106,21 @@ class ResolvedCamera:
     source: str
     depth_factor: float | None = None
     fallback: bool = False
+
+
+class CameraChoice(TypedDict, total=False):
+    """The camera options a folder source takes as keywords, for :func:`resolve_camera`.
+
+    Attributes:
+        camera: a :class:`PinholeCamera`, a preset name, or a camera file path.
+        fx, fy, cx, cy: explicit intrinsics in pixels; all four or none.
+    """
+
+    camera: str | Path | PinholeCamera | None
+    fx: float | None
+    fy: float | None
+    cx: float | None
+    cy: float | None
 
 
 def preset(name: str) -> PinholeCamera:

@@ -36,7 +36,7 @@ from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -44,10 +44,13 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, SourceInfo, StreamInfo
-from slamcli.formats.camera import find_camera_file, load_camera_file, resolve_camera
+from slamcli.formats.camera import CameraChoice, find_camera_file, load_camera_file, resolve_camera
 from slamcli.formats.rgbd_folder import NAMED, FolderImage, RgbdFolderSource
 from slamcli.formats.text import iter_data_lines, parse_count, parse_floats
 from slamcli.types import ImageFrame, PinholeCamera, ProgressFn, RgbdFrame, Trajectory
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
 
 COLOUR_FOLDERS = sniff.REDWOOD_COLOUR_FOLDERS
 """Colour image folders, in the order they are looked for."""
@@ -244,13 +247,9 @@ class RedwoodSource(RgbdFolderSource):
         path: str | Path,
         *,
         depth_factor: float | None = None,
-        camera: str | Path | PinholeCamera | None = None,
-        fx: float | None = None,
-        fy: float | None = None,
-        cx: float | None = None,
-        cy: float | None = None,
         strict: bool = False,
         fps: float = DEFAULT_FPS,
+        **choice: Unpack[CameraChoice],
     ) -> None:
         self.path = Path(path)
         if depth_factor is not None and not (np.isfinite(depth_factor) and depth_factor > 0):
@@ -287,7 +286,7 @@ class RedwoodSource(RgbdFolderSource):
                 hint="colour images go in image/ (or color/), 16-bit depth PNGs in depth/",
             )
         self.pairs, self.unpaired_colour, self.unpaired_depth, self.pairing = self._pair()
-        resolved = self._resolve_camera(camera, fx, fy, cx, cy)
+        resolved = self._resolve_camera(choice)
         self.camera, self.camera_source, file_factor = resolved
         self._use_depth_factor(depth_factor, file_factor, DEFAULT_DEPTH_FACTOR, "Redwood default")
         self.groundtruth_path, self.other_logs = find_groundtruth_log(self.path)
@@ -330,14 +329,8 @@ class RedwoodSource(RgbdFolderSource):
         lone_d = [by_depth[n] for n in sorted(set(by_depth) - set(by_colour))]
         return pairs, lone_c, lone_d, "file-name number"
 
-    def _resolve_camera(
-        self,
-        camera: str | Path | PinholeCamera | None,
-        fx: float | None,
-        fy: float | None,
-        cx: float | None,
-        cy: float | None,
-    ) -> tuple[PinholeCamera, str, float | None]:
+    def _resolve_camera(self, choice: CameraChoice) -> tuple[PinholeCamera, str, float | None]:
+        camera = choice.get("camera")
         if camera is not None:
             base = resolve_camera(self.path, camera)
             cam, source, factor = base.camera, base.source, base.depth_factor
@@ -355,6 +348,7 @@ class RedwoodSource(RgbdFolderSource):
             else:
                 cam, factor = PRIMESENSE, None
                 source = "PrimeSense default (no camera file in the folder)"
+        fx, fy, cx, cy = choice.get("fx"), choice.get("fy"), choice.get("cx"), choice.get("cy")
         if any(v is not None for v in (fx, fy, cx, cy)):
             explicit = resolve_camera(self.path, cam, fx, fy, cx, cy)
             return explicit.camera, f"explicit fx/fy/cx/cy (image size from {source})", factor

@@ -30,7 +30,7 @@ from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -38,7 +38,7 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, SourceInfo, StreamInfo
-from slamcli.formats.camera import DEFAULT_DEPTH_FACTOR, resolve_camera
+from slamcli.formats.camera import DEFAULT_DEPTH_FACTOR, CameraChoice, resolve_camera
 from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.rgbd_folder import DEPTH_PLAUSIBLE_M as DEPTH_PLAUSIBLE_M
 from slamcli.formats.rgbd_folder import FolderImage, RgbdFolderSource
@@ -47,14 +47,10 @@ from slamcli.formats.rgbd_folder import depth_scale_problem as depth_scale_probl
 from slamcli.formats.text import iter_data_lines, parse_floats, parse_stamp_ns
 from slamcli.formats.trajectory import read_trajectory
 from slamcli.geometry.camera import undistort_image
-from slamcli.types import (
-    ImageFrame,
-    ImuFrame,
-    PinholeCamera,
-    ProgressFn,
-    RgbdFrame,
-    Trajectory,
-)
+from slamcli.types import ImageFrame, ImuFrame, ProgressFn, RgbdFrame, Trajectory
+
+if TYPE_CHECKING:
+    from typing_extensions import Unpack
 
 GROUNDTRUTH_MAX_DT_S = 0.02
 """A frame counts as covered by ground truth when a pose lies within this many seconds."""
@@ -161,13 +157,9 @@ class TumRgbdSource(RgbdFolderSource):
         max_dt: float = 0.02,
         dt_offset: float = 0.0,
         depth_factor: float | None = None,
-        camera: str | Path | PinholeCamera | None = None,
-        fx: float | None = None,
-        fy: float | None = None,
-        cx: float | None = None,
-        cy: float | None = None,
         undistort: bool = False,
         strict: bool = False,
+        **choice: Unpack[CameraChoice],
     ) -> None:
         self.path = Path(path)
         if not np.isfinite(max_dt) or max_dt <= 0:
@@ -202,7 +194,7 @@ class TumRgbdSource(RgbdFolderSource):
             if self.has_depth
             else ImageList(self.path / "depth.txt", np.zeros(0, np.int64), (), ())
         )
-        resolved = resolve_camera(self.path, camera, fx, fy, cx, cy)
+        resolved = resolve_camera(self.path, **choice)
         self.raw_camera = resolved.camera
         self.camera_source = resolved.source
         self.camera_is_fallback = resolved.fallback
