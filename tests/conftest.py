@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -35,16 +36,47 @@ def trajectories_dir() -> Path:
 
 
 @pytest.fixture(scope="session")
-def reference_run(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> Any:
+def shared_root(tmp_path_factory: pytest.TempPathFactory, worker_id: str) -> Path:
+    """The session's folder of shared runs and artefacts, the same for every test process."""
+    base = tmp_path_factory.getbasetemp()
+    # Under pytest-xdist each process has its own base folder inside the session's.
+    return (base if worker_id == "master" else base.parent) / "reference-runs"
+
+
+@pytest.fixture(scope="session")
+def reference_run(shared_root: Path) -> Any:
     """``reference_run(name)``: the run folder of a reference run (``reference_runs.RUNS``),
     made once per test session, whichever test process asks first."""
     from reference_runs import run_once
 
-    base = tmp_path_factory.getbasetemp()
-    # Under pytest-xdist each process has its own base folder inside the session's.
-    root = (base if worker_id == "master" else base.parent) / "reference-runs"
-
     def get(name: str) -> Path:
-        return run_once(name, root)
+        return run_once(name, shared_root)
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def shared_run(shared_root: Path) -> Any:
+    """``shared_run(*argv, cwd=None, suffix="")``: ``slamcli ARGV`` run once per test session,
+    whichever test process asks first, as a ``reference_runs.SharedRun`` (its ``--out`` folder,
+    exit code and output). Commands that differ only in ``--out`` and ``--force`` are one run,
+    and a reference run is the same run as the same command here. Read ``out``; to change it,
+    copy it first (``reference_runs.copy_out``)."""
+    from reference_runs import run_shared
+
+    def get(*argv: str | Path, cwd: Path | None = None, suffix: str = "") -> Any:
+        return run_shared(argv, shared_root, cwd=cwd, suffix=suffix)
+
+    return get
+
+
+@pytest.fixture(scope="session")
+def shared_artefact(shared_root: Path) -> Any:
+    """``shared_artefact(key, make)``: the folder ``make(folder)`` fills, made once per test
+    session whichever test process asks first (a generated input several tests read)."""
+    from reference_runs import make_once
+
+    def get(key: str, make: Callable[[Path], object]) -> Path:
+        return make_once(key, shared_root, make)
 
     return get

@@ -11,6 +11,10 @@ builds, and a visual tracker's choices follow it).
 
 Every command runs in-process through the CLI's own entry point, once per test session
 (:func:`run_once`), so the tests that read these runs share them.
+
+The same machinery shares any command or artefact that several tests need: :func:`run_shared`
+runs a ``slamcli`` command once per session, keyed by its arguments (a reference run is one of
+them), and :func:`make_once` makes any other expensive input once.
 """
 
 from __future__ import annotations
@@ -22,9 +26,10 @@ import hashlib
 import json
 import os
 import platform
+import re
 import shutil
 import subprocess
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
@@ -54,9 +59,13 @@ class Run:
     files: tuple[str, ...]
     tolerance_m: float
 
-    def command(self, out: Path) -> list[str]:
+    def arguments(self) -> list[str]:
+        """``argv`` with this machine's data and repository folders filled in."""
         subs = {"shared": str(SHARED_DATA), "repo": str(REPO)}
-        return [a.format(**subs) for a in self.argv] + ["--out", str(out)]
+        return [a.format(**subs) for a in self.argv]
+
+    def command(self, out: Path) -> list[str]:
+        return [*self.arguments(), "--out", str(out)]
 
 
 RUNS: dict[str, Run] = {
@@ -180,20 +189,168 @@ def run_in_process(argv: list[str]) -> tuple[int, str]:
 def run_once(name: str, root: Path) -> Path:
     """The run folder of reference run ``name`` under ``root``, made the first time any test
     process of the session asks for it (the others wait for it, then read it)."""
-    out = root / name
-    done = root / f"{name}.done"
-    with _locked(root / f"{name}.lock"):
+    run = run_shared(RUNS[name].arguments(), root)
+    if run.exit_code != 0:
+        raise RuntimeError(f"reference run {name} exited {run.exit_code}:\n{run.output}")
+    return run.out
+
+
+# --- commands and artefacts shared by the tests of one session ------------------------------------
+
+
+@dataclass(frozen=True)
+class SharedRun:
+    """A command run once for the whole test session, and what it printed.
+
+    ``out`` is its ``--out``; it is shared, so a test reads it and never changes it (copy it
+    first, :func:`copy_out`). ``exception`` is the repr of an exception other than
+    ``SystemExit`` that the command raised, else None.
+    """
+
+    argv: tuple[str, ...]
+    out: Path
+    exit_code: int
+    output: str
+    stdout: str
+    stderr: str
+    exception: str | None
+
+
+def _exists(path: Path) -> bool:
+    try:
+        return path.exists()
+    except (OSError, ValueError):  # not a path: too long, or with a NUL
+        return False
+
+
+def _is_option(token: str, name: str) -> bool:
+    return token == name or token.startswith(f"{name}=")
+
+
+def shared_arguments(argv: Sequence[str | Path], cwd: Path | None = None) -> tuple[str, ...]:
+    """What decides a command's result: ``argv`` without ``--out`` (a shared run writes its own
+    folder) and ``--force`` (which only matters for a folder that exists, and a shared run's
+    never does), with every argument that names an existing path made absolute and resolved,
+    so that the same command given from another folder, or through a symlink, is the same."""
+    base = Path.cwd() if cwd is None else cwd
+    out: list[str] = []
+    tokens = [str(t) for t in argv]
+    i = 0
+    while i < len(tokens):
+        token = tokens[i]
+        if token == "--out":
+            i += 2
+            continue
+        if _is_option(token, "--out") or token == "--force":
+            i += 1
+            continue
+        if not token.startswith("-") and _exists(base / token):
+            token = str((base / token).resolve())
+        out.append(token)
+        i += 1
+    return tuple(out)
+
+
+def out_argument(argv: Sequence[str | Path]) -> str | None:
+    """The value of ``--out`` in ``argv``, if any."""
+    tokens = [str(t) for t in argv]
+    for i, token in enumerate(tokens):
+        if token == "--out" and i + 1 < len(tokens):
+            return tokens[i + 1]
+        if token.startswith("--out="):
+            return token.split("=", 1)[1]
+    return None
+
+
+def _key(arguments: tuple[str, ...], suffix: str) -> str:
+    words = [t for t in arguments if not t.startswith("-") and "/" not in t][:3]
+    slug = re.sub(r"[^A-Za-z0-9]+", "-", "-".join(words)).strip("-")[:40] or "run"
+    digest = hashlib.sha256(json.dumps([arguments, suffix]).encode()).hexdigest()[:12]
+    return f"{slug}-{digest}"
+
+
+def run_shared(
+    argv: Sequence[str | Path], root: Path, *, cwd: Path | None = None, suffix: str = ""
+) -> SharedRun:
+    """``slamcli ARGV`` run once per test session under ``root``, whichever test process asks
+    first (the others wait for it, then read what it wrote and printed).
+
+    Commands that differ only in ``--out`` and ``--force``, or in how they name the same
+    input (see :func:`shared_arguments`), are one run. ``suffix`` is the ``--out`` name's
+    suffix for commands whose ``--out`` is a file (``.npz``, ``.ply``), part of the key.
+    The command runs in-process through the CLI's entry point, in ``root``.
+    """
+    arguments = shared_arguments(argv, cwd)
+    key = _key(arguments, suffix)
+    folder = root / key
+    out = folder / f"out{suffix}"
+    record = root / f"{key}.json"
+    with _locked(root / f"{key}.lock"):
+        if not record.exists():
+            from typer.testing import CliRunner
+
+            from slamcli.cli.app import app
+
+            if folder.exists():
+                shutil.rmtree(folder)
+            folder.mkdir(parents=True)
+            with contextlib.chdir(folder):
+                result = CliRunner().invoke(app, [*arguments, "--out", str(out)])
+            exception = result.exception
+            record.write_text(
+                json.dumps(
+                    {
+                        "argv": arguments,
+                        "exit_code": result.exit_code,
+                        "output": result.output,
+                        "stdout": result.stdout,
+                        "stderr": result.stderr,
+                        "exception": None
+                        if exception is None or isinstance(exception, SystemExit)
+                        else repr(exception),
+                    }
+                )
+            )
+    done = json.loads(record.read_text())
+    return SharedRun(
+        argv=tuple(done["argv"]),
+        out=out,
+        exit_code=done["exit_code"],
+        output=done["output"],
+        stdout=done["stdout"],
+        stderr=done["stderr"],
+        exception=done["exception"],
+    )
+
+
+def copy_out(run: SharedRun, dest: Path) -> Path:
+    """A private copy of a shared run's output (a folder or a file) at ``dest``, to change."""
+    dest.parent.mkdir(parents=True, exist_ok=True)
+    if run.out.is_dir():
+        shutil.copytree(run.out, dest, symlinks=True)
+    elif run.out.exists():
+        shutil.copy2(run.out, dest)
+    return dest
+
+
+def make_once(key: str, root: Path, make: Callable[[Path], object]) -> Path:
+    """The folder ``root/key``, filled by ``make(folder)`` once per test session, whichever test
+    process asks first (the others wait for it). A ``make`` that fails leaves nothing, and
+    the next test to ask tries again (and fails with its own traceback)."""
+    folder = root / key
+    done = root / f"{key}.done"
+    with _locked(root / f"{key}.lock"):
         if not done.exists():
-            if out.exists():
-                shutil.rmtree(out)
-            code, output = run_in_process(RUNS[name].command(out))
-            done.write_text(json.dumps({"exit_code": code, "output": output}))
-    status = json.loads(done.read_text())
-    if status["exit_code"] != 0:
-        raise RuntimeError(
-            f"reference run {name} exited {status['exit_code']}:\n{status['output']}"
-        )
-    return out
+            if folder.exists():
+                shutil.rmtree(folder)
+            folder.mkdir(parents=True)
+            try:
+                make(folder)
+            except BaseException:
+                shutil.rmtree(folder, ignore_errors=True)
+                raise
+            done.touch()
+    return folder
 
 
 def record(names: list[str]) -> None:
