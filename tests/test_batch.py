@@ -274,14 +274,27 @@ def test_a_job_whose_process_dies_is_tried_again(
     assert gone.status == "error" and gone.attempts == 3 and "signal 11" in gone.error
 
 
-def test_an_unreachable_scheduler_is_a_one_line_error(data: Path, tmp_path: Path) -> None:
-    pytest.importorskip("distributed")
+def test_an_unreachable_scheduler_is_a_one_line_error(
+    data: Path, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    distributed = pytest.importorskip("distributed")
+    real_client = distributed.Client
+    connects: list[str] = []
+
+    def client(address: str, *args: Any, timeout: Any = None, **kwargs: Any) -> Any:
+        # A refused connection is retried until the connect timeout (10 s in the command);
+        # one second ends the same way, through the same error boundary.
+        connects.append(address)
+        return real_client(address, *args, timeout="1s", **kwargs)
+
+    monkeypatch.setattr(distributed, "Client", client)
     manifest = _manifest(
         tmp_path, f'[[job]]\nname = "a"\ninput = "{data / "world"}"\npipeline = "ekf"\n'
     )
     res = _batch([str(manifest), "--out", str(tmp_path / "o"), "--scheduler", "tcp://127.0.0.1:9"])
     assert res.exit_code == 1, res.output
     assert "cannot reach the Dask scheduler" in res.output and "Traceback" not in res.output
+    assert connects == ["tcp://127.0.0.1:9"]
 
 
 @pytest.mark.parametrize("pipeline", ["dense", "visual", "odometry", "ekf"])
@@ -378,17 +391,20 @@ fail_if = ["ate.rmse > 0.5", "landmarks.rmse_m > 0.5"]
 
 
 @pytest.fixture(scope="module")
-def shared_batch(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Any]:
-    """The manifest run with --jobs 2 through the CLI, and again on a Dask LocalCluster."""
+def shared_batch(shared_run: Any, shared_artefact: Any) -> dict[str, Any]:
+    """The manifest run with --jobs 2 through the CLI, once per test session (the tests that
+    read it may run in different test processes)."""
     from conftest import shared_path
 
     tum = shared_path("tum", "rgbd_dataset_freiburg1_rpy_excerpt")
     mrclam = shared_path("landmarks", "MRCLAM_Dataset6")
-    root = tmp_path_factory.mktemp("shared_batch")
-    manifest = root / "ci.toml"
-    manifest.write_text(SHARED_MANIFEST.replace("{tum}", str(tum)).replace("{mrclam}", str(mrclam)))
-    local = _batch([str(manifest), "--out", str(root / "local"), "--jobs", "2"])
-    return {"root": root, "manifest": manifest, "local": local}
+    text = SHARED_MANIFEST.replace("{tum}", str(tum)).replace("{mrclam}", str(mrclam))
+    folder = shared_artefact("batch-shared-manifest", lambda f: (f / "ci.toml").write_text(text))
+    manifest = folder / "ci.toml"
+    assert manifest.read_text() == text
+    local = shared_run("batch", manifest, "--jobs", "2")
+    assert local.exception is None, local.output
+    return {"manifest": manifest, "local": local}
 
 
 def test_shared_manifest_statuses_exit_code_and_junit(shared_batch: dict[str, Any]) -> None:
@@ -396,7 +412,7 @@ def test_shared_manifest_statuses_exit_code_and_junit(shared_batch: dict[str, An
 
     res = shared_batch["local"]
     assert res.exit_code == 1, res.output  # the missing log could not run
-    out = shared_batch["root"] / "local"
+    out = res.out
     record = json.loads((out / "batch.json").read_text())
     status = {j["name"]: j["status"] for j in record["jobs"]}
     assert status.pop("missing-log") == "error"
@@ -422,12 +438,11 @@ def test_shared_manifest_statuses_exit_code_and_junit(shared_batch: dict[str, An
 
 
 def test_shared_manifest_on_a_dask_cluster_gives_the_same_trajectories(
-    shared_batch: dict[str, Any],
+    shared_batch: dict[str, Any], tmp_path: Path
 ) -> None:
     pytest.importorskip("distributed")
     from distributed import LocalCluster
 
-    root = shared_batch["root"]
     with LocalCluster(
         n_workers=2, threads_per_worker=1, host="127.0.0.1", dashboard_address=None
     ) as cluster:
@@ -435,26 +450,31 @@ def test_shared_manifest_on_a_dask_cluster_gives_the_same_trajectories(
             [
                 str(shared_batch["manifest"]),
                 "--out",
-                str(root / "dask"),
+                str(tmp_path / "dask"),
                 "--scheduler",
                 cluster.scheduler_address,
             ]
         )
     assert res.exit_code == 1, res.output
-    local, remote = _job_files(root / "local"), _job_files(root / "dask")
+    local, remote = _job_files(shared_batch["local"].out), _job_files(tmp_path / "dask")
     assert len(local) == 8 and local == remote
 
 
-def test_resume_after_a_finished_batch_runs_nothing(shared_batch: dict[str, Any]) -> None:
+def test_resume_after_a_finished_batch_runs_nothing(
+    shared_batch: dict[str, Any], tmp_path: Path
+) -> None:
     import time
 
-    root = shared_batch["root"]
-    before = {p: p.stat().st_mtime_ns for p in (root / "local").glob("*/run.json")}
+    from reference_runs import copy_out
+
+    # Resumed in a copy: the finished batch is shared with the tests above.
+    out = copy_out(shared_batch["local"], tmp_path / "local")
+    before = {p: p.stat().st_mtime_ns for p in out.glob("*/run.json")}
     start = time.perf_counter()
-    res = _batch([str(shared_batch["manifest"]), "--out", str(root / "local"), "--resume"])
+    res = _batch([str(shared_batch["manifest"]), "--out", str(out), "--resume"])
     seconds = time.perf_counter() - start
     assert res.exit_code == 1, res.output  # the missing log is tried again and fails again
-    record = json.loads((root / "local" / "batch.json").read_text())
+    record = json.loads((out / "batch.json").read_text())
     assert [j["name"] for j in record["jobs"] if not j["resumed"]] == ["missing-log"]
     assert {p: p.stat().st_mtime_ns for p in before} == before
     assert seconds < 20, seconds  # hashing the inputs and a failed open, no pipeline run
