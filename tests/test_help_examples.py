@@ -6,6 +6,10 @@ to the repository's and ``root/shared`` to the real shared folder, so ``sample_d
 ``../shared/data/…`` resolve as in a checkout beside the shared folder, and an example finds the
 files an earlier one wrote (``runs/room_dense``, ``runs/landmarks``, …). A trailing ``> FILE``
 writes the command's output to FILE, as the shell would.
+
+An example that other tests run too (the demo, reference runs such as ``graph optimize`` on
+intel or ``plan`` on the Nav2 map) runs once per test session (the ``shared_run`` fixture), and
+its ``--out`` is copied into the work folder for the examples after it.
 """
 
 from __future__ import annotations
@@ -19,6 +23,7 @@ from typing import Any
 import pytest
 import typer
 from conftest import SHARED_DATA, shared_path
+from reference_runs import copy_out, out_argument
 from typer.testing import CliRunner
 
 from slamcli.cli.app import app
@@ -108,8 +113,29 @@ def work(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return cwd
 
 
+def _shared_with_other_tests(args: list[str], work: Path) -> bool:
+    """Whether an example is a command that other tests run too, and so runs once per session
+    (``shared_run``) and is copied here: it writes a new ``--out`` and reads nothing of the
+    work folder (only the repository's and the shared data)."""
+    out = out_argument(args)
+    if out is None or (work / out).exists():
+        return False
+    root = work.resolve()
+    for token in args:
+        if token == out:
+            continue
+        for part in {token, token.split("=", 1)[-1]}:
+            path = work / part
+            if path.exists():
+                if root in path.resolve().parents:
+                    return False
+            elif "/" in part:
+                return False  # a path to be written, or one that is not there
+    return True
+
+
 @pytest.mark.slow
-def test_every_example_runs(work: Path) -> None:
+def test_every_example_runs(work: Path, shared_run: Any) -> None:
     found = examples_by_command()
     lines = [line for name in ORDER for line in [*BEFORE.get(name, []), *found[name]]]
     assert lines, "no examples found"
@@ -120,12 +146,22 @@ def test_every_example_runs(work: Path) -> None:
         if ">" in args:
             at = args.index(">")
             args, target = args[:at], args[at + 1]
-        result = runner.invoke(app, args, catch_exceptions=True)
-        output = result.stdout + result.stderr
+        if target is None and _shared_with_other_tests(args, work):
+            out = out_argument(args)
+            assert out is not None
+            run = shared_run(*args, cwd=work, suffix=Path(out).suffix)
+            stdout, exception, exit_code = run.stdout, run.exception, run.exit_code
+            output = run.stdout + run.stderr
+            copy_out(run, work / out)
+        else:
+            result = runner.invoke(app, args, catch_exceptions=True)
+            stdout, exit_code = result.stdout, result.exit_code
+            output = result.stdout + result.stderr
+            exception = None
+            if result.exception is not None and not isinstance(result.exception, SystemExit):
+                exception = repr(result.exception)
         assert "Traceback" not in output, f"{line}\n{output}"
-        assert result.exception is None or isinstance(result.exception, SystemExit), (
-            f"{line}: {result.exception!r}\n{output}"
-        )
-        assert result.exit_code == 0, f"{line} exited with {result.exit_code}\n{output}"
+        assert exception is None, f"{line}: {exception}\n{output}"
+        assert exit_code == 0, f"{line} exited with {exit_code}\n{output}"
         if target:
-            Path(target).write_text(result.stdout)
+            Path(target).write_text(stdout)

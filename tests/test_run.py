@@ -4,9 +4,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+from reference_runs import SharedRun
 from typer.testing import CliRunner
 
 from slamcli.cli.app import app
@@ -18,9 +20,16 @@ from slamcli.run import run_pipeline
 runner = CliRunner()
 
 
-def test_demo_writes_an_accurate_run(tmp_path: Path) -> None:
-    root = tmp_path / "demo"
-    res = runner.invoke(app, ["demo", "--out", str(root)])
+@pytest.fixture
+def demo(shared_run: Any) -> SharedRun:
+    """``slamcli demo``, run once per test session (the help and README examples run it too)."""
+    run = shared_run("demo")
+    assert run.exception is None, run.output
+    return run
+
+
+def test_demo_writes_an_accurate_run(demo: SharedRun) -> None:
+    root, res = demo.out, demo
     assert res.exit_code == 0, res.output
     assert {p.name for p in root.iterdir()} == {"dense", "plan", "ekf", "visual"}
     out = root / "dense"
@@ -66,9 +75,11 @@ def test_demo_writes_an_accurate_run(tmp_path: Path) -> None:
     assert {"trajectory.tum", "keyframes.tum", "points.ply", "graph.g2o"} <= set(visual["outputs"])
 
 
-def test_demo_is_deterministic_and_refuses_to_clobber(tmp_path: Path) -> None:
-    first, second = tmp_path / "a", tmp_path / "b"
-    assert runner.invoke(app, ["demo", "--out", str(first)]).exit_code == 0
+def test_demo_is_deterministic_and_refuses_to_clobber(demo: SharedRun, tmp_path: Path) -> None:
+    # The shared demo is the first run; this test's own is the second, and the one it
+    # tries to overwrite.
+    first, second = demo.out, tmp_path / "b"
+    assert demo.exit_code == 0
     assert runner.invoke(app, ["demo", "--out", str(second)]).exit_code == 0
     for name in (
         "dense/trajectory.tum",
@@ -78,11 +89,11 @@ def test_demo_is_deterministic_and_refuses_to_clobber(tmp_path: Path) -> None:
         "visual/trajectory.tum",
     ):
         assert (first / name).read_bytes() == (second / name).read_bytes(), name
-    a = (first / "dense" / "trajectory.tum").read_bytes()
-    res = runner.invoke(app, ["demo", "--out", str(first)])
+    a = (second / "dense" / "trajectory.tum").read_bytes()
+    res = runner.invoke(app, ["demo", "--out", str(second)])
     assert res.exit_code == 1
     assert "not empty" in res.output and "--force" in res.output
-    assert (first / "dense" / "trajectory.tum").read_bytes() == a
+    assert (second / "dense" / "trajectory.tum").read_bytes() == a
 
 
 def test_demo_names_missing_data(tmp_path: Path) -> None:
