@@ -16,24 +16,34 @@
 
 The dead-reckoning trajectory is evaluated with the same :func:`evaluate_planar` (no
 covariance, no landmarks); :func:`dead_reckoning_ate` is that call.
+
+**Several robots in one frame** (:func:`evaluate_common_frame`): robots mapped into one world
+frame (a joint run, or separate runs merged) are each evaluated alone, then all under **one**
+SE(2) alignment fitted on every robot's matched positions together, so the figures also
+measure how well the robots agree with each other.
 """
 
 from __future__ import annotations
 
+import logging
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Generic, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import InputError
 from slamcli.evaluation import ErrorStats
-from slamcli.geometry import interpolate_planar, se3_to_planar, umeyama, wrap_angle
+from slamcli.geometry import interpolate_planar, rotation_2d, se3_to_planar, umeyama, wrap_angle
 from slamcli.geometry.chi2 import chi2_quantile
 from slamcli.types import LandmarkMap, Trajectory
 
+log = logging.getLogger(__name__)
+
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
+K = TypeVar("K", bound=Hashable)
 
 MIN_PAIRS_SE2 = 3
 """Fewest matched poses for the SE(2) alignment."""
@@ -211,7 +221,7 @@ class PlanarEval:
     @property
     def rotation(self) -> F64:
         """(2, 2) rotation of the alignment."""
-        return _rot2(self.angle_rad)
+        return rotation_2d(self.angle_rad)
 
     def transform_xy(self, xy: F64) -> F64:
         """(K, 2) positions in the estimate's frame -> the ground truth's frame."""
@@ -248,11 +258,6 @@ class PlanarEval:
         if self.nees is not None:
             out["nees"] = self.nees.to_dict()
         return out
-
-
-def _rot2(angle: float) -> F64:
-    c, s = np.cos(angle), np.sin(angle)
-    return np.array([[c, -s], [s, c]])
 
 
 def _span(stamps: I64) -> str:
@@ -342,7 +347,7 @@ def evaluate_planar(
     lm_eval = None
     if landmarks is not None and true_landmarks is not None:
         lm_eval = _landmark_eval(
-            landmarks, true_landmarks, _rot2(angle), t, known_ids, match_radius_m
+            landmarks, true_landmarks, rotation_2d(angle), t, known_ids, match_radius_m
         )
     nees = None
     if est_cov is not None:
@@ -379,6 +384,111 @@ def dead_reckoning_ate(
 ) -> PlanarEval:
     """The odometry-only trajectory measured like the filter's estimate (no NEES, no map)."""
     return evaluate_planar(gt, dr_traj, max_gap_s=max_gap_s)
+
+
+@dataclass(frozen=True)
+class RobotInCommonFrame:
+    """One robot's figures in :func:`evaluate_common_frame`.
+
+    Attributes:
+        own: the robot evaluated alone: its own SE(2) alignment, ``own.ate`` under it and
+            ``own.ate_unaligned`` in the estimates' shared frame.
+        errors_m: (M,) position errors of ``own``'s matched poses under the common alignment, m.
+        ate: statistics of ``errors_m``.
+    """
+
+    own: PlanarEval
+    errors_m: F64
+    ate: ErrorStats
+
+    @property
+    def matched(self) -> int:
+        return int(self.errors_m.shape[0])
+
+
+@dataclass(frozen=True)
+class CommonFrameEval(Generic[K]):
+    """Several robots' estimates against their ground truths under one SE(2) alignment.
+
+    Attributes:
+        transform: (3,) x, y (m) and yaw (rad) of the one alignment of all robots,
+            ``p_gt ≈ R(yaw) p_est + (x, y)``.
+        robots: per robot that could be evaluated, its figures (in the estimates' order).
+        ate: statistics of every robot's errors under the common alignment together, m.
+    """
+
+    transform: F64
+    robots: dict[K, RobotInCommonFrame]
+    ate: ErrorStats
+
+    @property
+    def matched(self) -> int:
+        return sum(r.matched for r in self.robots.values())
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready: the transform as [x, y, yaw], ``ate_common`` over all robots and, per
+        robot (keyed by ``str(id)``), ``ate`` under its own alignment and ``ate_common``."""
+        return {
+            "alignment": "se2, one transform for all robots",
+            "transform": [float(v) for v in self.transform],
+            "ate_common": self.ate.to_dict() | {"matched": self.matched},
+            "per_robot": {
+                str(k): {
+                    "ate": r.own.ate.to_dict(),
+                    "ate_common": r.ate.to_dict() | {"matched": r.matched},
+                }
+                for k, r in self.robots.items()
+            },
+        }
+
+
+def evaluate_common_frame(
+    truths: Mapping[K, Trajectory],
+    estimates: Mapping[K, Trajectory],
+    *,
+    max_gap_s: float = 0.5,
+) -> CommonFrameEval[K] | None:
+    """ATE of robots whose estimates share one world frame, each alone and all under one SE(2)
+    alignment.
+
+    Each robot with ground truth is evaluated alone (:func:`evaluate_planar`); its matched
+    poses are pooled with the other robots' and one least-squares SE(2) fit over all of them
+    (Umeyama in 2-D, as for one robot) is the common alignment. A robot without ground truth,
+    or whose own evaluation fails (no overlap in time, too few matched poses: logged), is
+    left out.
+
+    Args:
+        truths: ground truth per robot id, planar poses embedded in SE(3).
+        estimates: estimate per robot id, all in one world frame; evaluated in this order.
+        max_gap_s: as for :func:`evaluate_planar`.
+
+    Returns:
+        The figures, or None when no robot could be evaluated.
+    """
+    own: dict[K, PlanarEval] = {}
+    for key, est in estimates.items():
+        gt = truths.get(key)
+        if gt is None:
+            continue
+        try:
+            own[key] = evaluate_planar(gt, est, max_gap_s=max_gap_s)
+        except InputError as exc:
+            log.warning("%s: no accuracy figures: %s", key, exc.msg)
+    if not own:
+        return None
+    rot, t, _ = umeyama(
+        np.concatenate([e.est[:, :2] for e in own.values()]),
+        np.concatenate([e.gt[:, :2] for e in own.values()]),
+    )
+    robots: dict[K, RobotInCommonFrame] = {}
+    for key, e in own.items():
+        err = np.linalg.norm(e.est[:, :2] @ rot.T + t - e.gt[:, :2], axis=1)
+        robots[key] = RobotInCommonFrame(own=e, errors_m=err, ate=ErrorStats.of(err))
+    return CommonFrameEval(
+        transform=np.array([t[0], t[1], np.arctan2(rot[1, 0], rot[0, 0])]),
+        robots=robots,
+        ate=ErrorStats.of(np.concatenate([r.errors_m for r in robots.values()])),
+    )
 
 
 def _checked_cov(cov: F64, n: int) -> F64:
@@ -487,10 +597,13 @@ def _landmark_eval(
 
 __all__ = [
     "MIN_PAIRS_SE2",
+    "CommonFrameEval",
     "LandmarkEval",
     "NeesEval",
     "PlanarEval",
+    "RobotInCommonFrame",
     "dead_reckoning_ate",
+    "evaluate_common_frame",
     "evaluate_planar",
     "nees_band",
 ]

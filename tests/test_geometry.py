@@ -1,4 +1,5 @@
-"""Invariants of the SE(3)/SO(3) maths and Umeyama alignment, checked on random inputs."""
+"""Invariants of the SE(3)/SO(3) and planar maths, Umeyama alignment and the planar rigid fit,
+checked on random inputs."""
 
 from __future__ import annotations
 
@@ -10,22 +11,29 @@ from hypothesis.extra.numpy import arrays
 
 from slamcli.errors import InputError
 from slamcli.geometry import (
+    between_planar,
     blend_poses,
     compose,
+    compose_planar,
     interpolate_poses,
     inverse,
+    invert_planar,
     make_pose,
     matrix_to_quat_wxyz,
     matrix_to_quat_xyzw,
     quat_wxyz_to_matrix,
     quat_xyzw_to_matrix,
+    rigid_fit_2d,
+    rotation_2d,
     rotation_angle,
     se3_exp,
     se3_log,
     slerp,
     so3_exp,
     so3_log,
+    transform_points_planar,
     umeyama,
+    wrap_angle,
 )
 
 finite = st.floats(-3.0, 3.0, allow_nan=False, allow_infinity=False)
@@ -158,3 +166,72 @@ def test_random_pose_stack_shapes() -> None:
     t = random_poses(4, 0)
     assert inverse(t).shape == (4, 4, 4)
     assert se3_log(t).shape == (4, 6)
+
+
+# --- planar poses and the planar rigid fit ---------------------------------------------------
+
+planar_poses = arrays(np.float64, (6, 3), elements=st.floats(-10.0, 10.0))
+
+
+@settings(max_examples=200, deadline=None)
+@given(planar_poses, planar_poses)
+def test_planar_inverse_and_between_agree_with_composition(a: np.ndarray, b: np.ndarray) -> None:
+    identity = compose_planar(a, invert_planar(a))
+    np.testing.assert_allclose(identity, 0.0, atol=1e-9)
+    rel = between_planar(a, b)
+    np.testing.assert_allclose(rel, compose_planar(invert_planar(a), b), atol=1e-9)
+    back = compose_planar(a, rel)
+    np.testing.assert_allclose(back[:, :2], b[:, :2], atol=1e-9)
+    np.testing.assert_allclose(wrap_angle(back[:, 2] - b[:, 2]), 0.0, atol=1e-9)
+
+
+def test_planar_points_move_like_composed_poses() -> None:
+    rng = np.random.default_rng(3)
+    pose, points = np.array([1.0, -2.0, 0.8]), rng.normal(size=(7, 2))
+    as_poses = compose_planar(pose, np.column_stack([points, np.zeros(7)]))
+    np.testing.assert_allclose(transform_points_planar(pose, points), as_poses[:, :2])
+    rots = rotation_2d(np.array([0.0, np.pi / 2]))
+    np.testing.assert_allclose(rots[1] @ [1.0, 0.0], [0.0, 1.0], atol=1e-15)
+    assert rots.shape == (2, 2, 2) and rotation_2d(0.3).shape == (2, 2)
+
+
+def _moved_points(n: int, seed: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points, a known planar transform and the points it maps them to."""
+    rng = np.random.default_rng(seed)
+    src = rng.normal(size=(n, 2)) * 5.0
+    truth = np.array([2.0, -1.5, 2.9])
+    return src, truth, transform_points_planar(truth, src)
+
+
+def test_rigid_fit_2d_recovers_a_known_transform_with_its_rms() -> None:
+    src, truth, dst = _moved_points(12, seed=4)
+    pose, rms = rigid_fit_2d(src, dst)
+    np.testing.assert_allclose(pose, truth, atol=1e-12)
+    assert rms < 1e-12
+    noisy = dst + np.random.default_rng(5).normal(0.0, 0.1, size=dst.shape)
+    pose, rms = rigid_fit_2d(src, noisy)
+    res = transform_points_planar(pose, src) - noisy
+    assert rms == pytest.approx(float(np.sqrt(np.mean(np.sum(res**2, axis=1)))))
+    # The same transform as Umeyama's SVD in 2-D.
+    rot, t, _ = umeyama(src, noisy)
+    np.testing.assert_allclose(rotation_2d(pose[2]), rot, atol=1e-12)
+    np.testing.assert_allclose(pose[:2], t, atol=1e-12)
+
+
+def test_rigid_fit_2d_weights_ignore_what_weighs_nothing() -> None:
+    src, truth, dst = _moved_points(10, seed=6)
+    spoiled = dst.copy()
+    spoiled[:3] += 4.0
+    weights = np.r_[np.zeros(3), np.full(7, 2.5)]
+    pose, rms = rigid_fit_2d(src, spoiled, weights)
+    np.testing.assert_allclose(pose, truth, atol=1e-12)
+    assert rms > 1.0  # the residuals' RMS counts every pair, weighted or not
+    # Equal weights give the unweighted fit.
+    equal, _ = rigid_fit_2d(src, spoiled, np.full(10, 0.3))
+    np.testing.assert_allclose(equal, rigid_fit_2d(src, spoiled)[0], atol=1e-12)
+
+
+def test_rigid_fit_2d_of_one_point_is_a_translation() -> None:
+    pose, rms = rigid_fit_2d([[1.0, 2.0]], [[4.0, 6.0]])
+    np.testing.assert_array_equal(pose, [3.0, 4.0, 0.0])
+    assert rms == 0.0

@@ -14,7 +14,12 @@ from scipy.stats import chi2
 
 from slamcli.errors import InputError
 from slamcli.geometry import planar_to_se3, wrap_angle
-from slamcli.planar_eval import dead_reckoning_ate, evaluate_planar, nees_band
+from slamcli.planar_eval import (
+    dead_reckoning_ate,
+    evaluate_common_frame,
+    evaluate_planar,
+    nees_band,
+)
 from slamcli.report import plot_landmark_run
 from slamcli.types import LandmarkMap, Trajectory
 
@@ -423,3 +428,69 @@ def test_landmark_covariances_rotate_with_the_alignment_and_give_3_sigma_ellipse
     assert coll.get_widths()[0] == pytest.approx(12.0)
     assert coll.get_heights()[0] == pytest.approx(6.0)
     assert abs(coll.get_angles()[0]) == pytest.approx(90.0)
+
+
+# --- several robots in one frame ---------------------------------------------------------------
+
+
+def _robots(offsets: dict[int, float]) -> tuple[dict[int, Trajectory], dict[int, Trajectory]]:
+    """Ground truths of robots driving the figure-eight shifted by ``offsets`` (m, in y) and
+    estimates in one frame rotated by 0.4 rad and shifted from the ground truth's, each with
+    its own noise."""
+    stamps, gt = _gt_path(n=300)
+    angle, t = _se2_inverse(0.4, np.array([1.0, 2.0]))
+    truths, estimates = {}, {}
+    for k, dy in offsets.items():
+        path = gt + np.array([0.0, dy, 0.0])
+        est = _se2_apply(angle, t, path)
+        est[:, :2] += np.random.default_rng(k).normal(0.0, 0.02, size=(len(est), 2))
+        truths[k], estimates[k] = _traj(stamps, path), _traj(stamps, est)
+    return truths, estimates
+
+
+def test_common_frame_fits_one_transform_for_all_robots() -> None:
+    truths, estimates = _robots({1: 0.0, 2: 5.0, 3: -4.0})
+    del truths[3]  # a robot without ground truth is left out
+    ev = evaluate_common_frame(truths, estimates)
+    assert ev is not None and list(ev.robots) == [1, 2]
+    assert ev.transform[2] == pytest.approx(0.4, abs=2e-3)
+    np.testing.assert_allclose(ev.transform[:2], [1.0, 2.0], atol=0.02)
+    for k, robot in ev.robots.items():
+        assert robot.own.ate.rmse == evaluate_planar(truths[k], estimates[k]).ate.rmse
+        assert robot.matched == 300 and robot.ate.rmse == pytest.approx(0.02 * np.sqrt(2), rel=0.2)
+        assert robot.own.ate_unaligned.rmse > 1.0
+    assert ev.matched == 600
+    pooled = np.concatenate([r.errors_m for r in ev.robots.values()])
+    assert ev.ate.rmse == pytest.approx(float(np.sqrt(np.mean(pooled**2))))
+
+    d = ev.to_dict()
+    json.dumps(d)
+    assert d["alignment"] == "se2, one transform for all robots"
+    assert d["transform"] == [float(v) for v in ev.transform]
+    assert {"rmse", "mean", "max", "matched"} <= d["ate_common"].keys()
+    assert d["ate_common"]["matched"] == 600
+    assert set(d["per_robot"]) == {"1", "2"}
+    one = d["per_robot"]["1"]
+    assert one["ate"] == ev.robots[1].own.ate.to_dict()
+    assert {"rmse", "mean", "max", "matched"} <= one["ate_common"].keys()
+
+
+def test_one_robot_in_the_common_frame_is_the_robot_alone() -> None:
+    truths, estimates = _robots({7: 0.0})
+    ev = evaluate_common_frame(truths, estimates)
+    assert ev is not None
+    own = ev.robots[7].own
+    assert ev.ate == own.ate == ev.robots[7].ate
+    assert ev.transform[2] == own.angle_rad
+    np.testing.assert_array_equal(ev.transform[:2], own.translation)
+
+
+def test_a_robot_that_cannot_be_evaluated_is_left_out(caplog: pytest.LogCaptureFixture) -> None:
+    truths, estimates = _robots({1: 0.0, 2: 3.0})
+    late = estimates[2].stamps_ns + 3600 * S
+    estimates[2] = Trajectory(late, estimates[2].world_from_body)
+    ev = evaluate_common_frame(truths, estimates)
+    assert ev is not None and list(ev.robots) == [1]
+    assert "2: no accuracy figures" in caplog.text and "do not overlap" in caplog.text
+    assert evaluate_common_frame({}, estimates) is None
+    assert evaluate_common_frame({2: truths[2]}, {2: estimates[2]}) is None

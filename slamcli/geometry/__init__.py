@@ -1,15 +1,19 @@
 """Batch rigid-body maths on ``(..., 4, 4)`` and ``(..., 3, 3)`` stacks, planar (x, y, yaw)
 poses and the unicycle motion model, and the χ² quantiles of Gaussian gates."""
 
-from slamcli.geometry.align import umeyama
+from slamcli.geometry.align import rigid_fit_2d, umeyama
 from slamcli.geometry.chi2 import chi2_quantile
 from slamcli.geometry.planar import (
+    between_planar,
     compose_planar,
     integrate_unicycle,
     interpolate_planar,
+    invert_planar,
     planar_to_se3,
+    rotation_2d,
     se3_to_planar,
     sin_ratio,
+    transform_points_planar,
     unicycle_step,
     wrap_angle,
 )
@@ -32,6 +36,7 @@ from slamcli.geometry.se3 import (
 )
 
 __all__ = [
+    "between_planar",
     "blend_poses",
     "chi2_quantile",
     "compose",
@@ -40,12 +45,15 @@ __all__ = [
     "interpolate_planar",
     "interpolate_poses",
     "inverse",
+    "invert_planar",
     "make_pose",
     "matrix_to_quat_wxyz",
     "matrix_to_quat_xyzw",
     "planar_to_se3",
     "quat_wxyz_to_matrix",
     "quat_xyzw_to_matrix",
+    "rigid_fit_2d",
+    "rotation_2d",
     "rotation_angle",
     "se3_exp",
     "se3_log",
@@ -54,6 +62,7 @@ __all__ = [
     "slerp",
     "so3_exp",
     "so3_log",
+    "transform_points_planar",
     "umeyama",
     "unicycle_step",
     "wrap_angle",

@@ -49,6 +49,37 @@ def compose_planar(a: ArrayLike, b: ArrayLike) -> F64:
     )
 
 
+def invert_planar(a: ArrayLike) -> F64:
+    """a⁻¹ for (..., 3) poses: the world's origin and axes seen from ``a``."""
+    a = np.asarray(a, dtype=np.float64)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    return np.stack(
+        [-(c * a[..., 0] + s * a[..., 1]), s * a[..., 0] - c * a[..., 1], wrap_angle(-a[..., 2])],
+        axis=-1,
+    )
+
+
+def between_planar(a: ArrayLike, b: ArrayLike) -> F64:
+    """a⁻¹ ⊕ b for (..., 3) poses: the pose ``b`` in ``a``'s frame."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
+    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
+    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], -1)
+
+
+def rotation_2d(yaw: ArrayLike) -> F64:
+    """(..., 2, 2) rotation matrices of angles ``yaw`` (...,), radians counter-clockwise."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
+
+
+def transform_points_planar(pose: ArrayLike, xy: ArrayLike) -> F64:
+    """(N, 2) points in the frame of ``pose`` (3,) x, y, yaw, mapped to the frame the pose is
+    expressed in: ``R(yaw) p + (x, y)``."""
+    p = np.asarray(pose, dtype=np.float64)
+    return np.asarray(np.asarray(xy, dtype=np.float64) @ rotation_2d(p[2]).T + p[:2])
+
+
 def sin_ratio(a: Real) -> Real:
     """``sin(a) / a`` elementwise, radians, with its limit 1 at ``a = 0``.
 

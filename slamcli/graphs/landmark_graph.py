@@ -28,8 +28,11 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.ekf.filter import arc_motion, relative_motion
+
+# Still imported from here by slamcli.run's several-robot evaluation.
+from slamcli.geometry.align import rigid_fit_2d as rigid_fit_2d
+from slamcli.geometry.planar import between_planar, wrap_angle
 from slamcli.geometry.planar import compose_planar as compose
-from slamcli.geometry.planar import wrap_angle
 
 F64 = NDArray[np.float64]
 
@@ -87,28 +90,6 @@ def between_covariance(delta: F64, cov: F64, floor: F64) -> F64:
     return np.asarray(0.5 * (out + out.T))
 
 
-def between(a: F64, b: F64) -> F64:
-    """``a⁻¹ ⊕ b``: the pose ``b`` in ``a``'s frame, for (..., 3) planar poses."""
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    c, s = np.cos(a[..., 2]), np.sin(a[..., 2])
-    dx, dy = b[..., 0] - a[..., 0], b[..., 1] - a[..., 1]
-    return np.stack([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[..., 2] - a[..., 2])], -1)
-
-
-def rigid_fit_2d(src: F64, dst: F64) -> tuple[F64, float]:
-    """The planar rigid transform (x, y, yaw) mapping points ``src`` (N, 2) onto ``dst`` (N, 2)
-    in least squares (Kabsch, no scale), and the RMS of the residuals in metres."""
-    ms, md = src.mean(axis=0), dst.mean(axis=0)
-    a, b = src - ms, dst - md
-    h = a.T @ b
-    yaw = math.atan2(h[0, 1] - h[1, 0], h[0, 0] + h[1, 1])
-    c, s = math.cos(yaw), math.sin(yaw)
-    rot = np.array([[c, -s], [s, c]])
-    t = md - rot @ ms
-    res = (src @ rot.T + t) - dst
-    return np.array([t[0], t[1], yaw]), float(np.sqrt(np.mean(np.sum(res * res, axis=1))))
-
-
 def blend_dense(
     key_stamps: NDArray[np.int64],
     key_poses: F64,
@@ -135,7 +116,7 @@ def blend_dense(
     forward = compose(key_poses[key_index], rel)
     nxt = np.minimum(key_index + 1, len(key_stamps) - 1)
     has_next = nxt > key_index
-    back_rel = between(key_rel[nxt], rel)
+    back_rel = between_planar(key_rel[nxt], rel)
     backward = compose(key_poses[nxt], back_rel)
     t0 = key_stamps[key_index].astype(np.float64)
     t1 = key_stamps[nxt].astype(np.float64)

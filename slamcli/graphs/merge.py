@@ -52,7 +52,16 @@ from numpy.typing import NDArray
 from slamcli.config import check_settings, setting
 from slamcli.errors import InputError
 from slamcli.formats.run_folder import RunRecord, read_run
-from slamcli.geometry import interpolate_planar, planar_to_se3, se3_to_planar, wrap_angle
+from slamcli.geometry import (
+    compose_planar,
+    invert_planar,
+    planar_to_se3,
+    rigid_fit_2d,
+    rotation_2d,
+    se3_to_planar,
+    transform_points_planar,
+    wrap_angle,
+)
 from slamcli.rundir import RunDir, Timings, hash_input
 from slamcli.types import LandmarkMap, ProgressFn, Trajectory
 
@@ -63,10 +72,6 @@ I64 = NDArray[np.int64]
 
 HUBER_WIDTH = math.sqrt(5.991464547107979)
 """Huber kernel width on the whitened residual norm: the 95 % χ² gate for 2 dof."""
-
-GT_MAX_GAP_S = 0.5
-"""A pose is compared with ground truth when the surrounding ground-truth samples are at most
-this far apart (as the EKF run's own evaluation does)."""
 
 
 @dataclass(frozen=True)
@@ -255,51 +260,12 @@ def load_runs(paths: Sequence[str | Path], config: MergeConfig | None = None) ->
 # --- Pairwise transforms -----------------------------------------------------------------------
 
 
-def _rot(yaw: F64 | float) -> F64:
-    c, s = np.cos(yaw), np.sin(yaw)
-    return np.stack([np.stack([c, -s], -1), np.stack([s, c], -1)], -2)
-
-
-def _apply(pose: F64, xy: F64) -> F64:
-    """``pose`` (3,) applied to (N, 2) points."""
-    return np.asarray(xy @ _rot(float(pose[2])).T + pose[:2], dtype=np.float64)
-
-
-def _compose(a: F64, b: F64) -> F64:
-    """Planar ``a ∘ b``."""
-    return np.array([*_apply(a, b[None, :2])[0], wrap_angle(a[2] + b[2])])
-
-
-def _inverse(a: F64) -> F64:
-    r = _rot(float(a[2]))
-    return np.array([*(-(r.T @ a[:2])), wrap_angle(-a[2])])
-
-
-def rigid_fit_2d(dst: F64, src: F64, weights: F64 | None = None) -> F64:
-    """The (3,) x, y, yaw minimising ``sum w_i |dst_i - (R src_i + t)|²`` (closed form).
-
-    Args:
-        dst, src: (N, 2) paired points, N >= 2.
-        weights: (N,) non-negative weights, or None for equal weights.
-    """
-    w = np.ones(len(src)) if weights is None else np.asarray(weights, dtype=np.float64)
-    w = w / w.sum()
-    cd, cs = w @ dst, w @ src
-    d, s = dst - cd, src - cs
-    yaw = math.atan2(
-        float(w @ (d[:, 1] * s[:, 0] - d[:, 0] * s[:, 1])),
-        float(w @ (d[:, 0] * s[:, 0] + d[:, 1] * s[:, 1])),
-    )
-    t = cd - _rot(yaw) @ cs
-    return np.array([t[0], t[1], yaw])
-
-
 def _hypotheses_2pt(dst: F64, src: F64) -> F64:
     """(H, 3) transforms from (H, 2, 2) point pairs: the one mapping src's segment onto dst's."""
     vd, vs = dst[:, 1] - dst[:, 0], src[:, 1] - src[:, 0]
     yaw = np.arctan2(vd[:, 1], vd[:, 0]) - np.arctan2(vs[:, 1], vs[:, 0])
     mid_d, mid_s = dst.mean(axis=1), src.mean(axis=1)
-    t = mid_d - np.einsum("hij,hj->hi", _rot(yaw), mid_s)
+    t = mid_d - np.einsum("hij,hj->hi", rotation_2d(yaw), mid_s)
     return np.column_stack([t, yaw])
 
 
@@ -349,12 +315,16 @@ def fit_pair(
         hyps = _hypotheses_2pt(
             la.xy[quads[:, [0, 2]]].reshape(-1, 2, 2), lb.xy[quads[:, [1, 3]]].reshape(-1, 2, 2)
         )
-        moved = np.einsum("hij,kj->hki", _rot(hyps[:, 2]), lb.xy[cand[:, 1]]) + hyps[:, None, :2]
+        moved = (
+            np.einsum("hij,kj->hki", rotation_2d(hyps[:, 2]), lb.xy[cand[:, 1]]) + hyps[:, None, :2]
+        )
         err = np.linalg.norm(moved - la.xy[cand[:, 0]][None], axis=2)
         best = hyps[int(np.argmax((err <= config.inlier_m).sum(axis=1)))]
 
         def inliers(pose: F64) -> I64:
-            e = np.linalg.norm(_apply(pose, lb.xy[cand[:, 1]]) - la.xy[cand[:, 0]], axis=1)
+            e = np.linalg.norm(
+                transform_points_planar(pose, lb.xy[cand[:, 1]]) - la.xy[cand[:, 0]], axis=1
+            )
             return cand[e <= config.inlier_m]
 
     else:
@@ -374,20 +344,20 @@ def fit_pair(
             return PairFit(a, b, np.full(3, np.nan), method, 0, empty, math.nan, False)
         pick = _pick(rng, candidates, config.max_hypotheses)
         hyps = _hypotheses_2pt(la.xy[pa[ha[pick]]], lb.xy[pb[hb[pick]]])
-        moved = np.einsum("hij,kj->hki", _rot(hyps[:, 2]), lb.xy) + hyps[:, None, :2]
+        moved = np.einsum("hij,kj->hki", rotation_2d(hyps[:, 2]), lb.xy) + hyps[:, None, :2]
         nearest = np.min(np.linalg.norm(moved[:, :, None] - la.xy[None, None], axis=3), axis=2)
         best = hyps[int(np.argmax((nearest <= config.inlier_m).sum(axis=1)))]
 
         def inliers(pose: F64) -> I64:
-            return _mutual_nearest(la.xy, _apply(pose, lb.xy), config.inlier_m)
+            return _mutual_nearest(la.xy, transform_points_planar(pose, lb.xy), config.inlier_m)
 
     pose, pairs = best, inliers(best)
     for _ in range(10):
         if len(pairs) < 2:
             break
-        pose = rigid_fit_2d(
-            la.xy[pairs[:, 0]],
+        pose, _ = rigid_fit_2d(
             lb.xy[pairs[:, 1]],
+            la.xy[pairs[:, 0]],
             _weights(runs[a], runs[b], pairs, config.sigma_floor_m),
         )
         again = inliers(pose)
@@ -397,7 +367,13 @@ def fit_pair(
     rms = (
         float(
             np.sqrt(
-                np.mean(np.sum((_apply(pose, lb.xy[pairs[:, 1]]) - la.xy[pairs[:, 0]]) ** 2, 1))
+                np.mean(
+                    np.sum(
+                        (transform_points_planar(pose, lb.xy[pairs[:, 1]]) - la.xy[pairs[:, 0]])
+                        ** 2,
+                        1,
+                    )
+                )
             )
         )
         if len(pairs)
@@ -420,10 +396,10 @@ def connect(fits: Sequence[PairFit], count: int) -> tuple[NDArray[np.bool_], F64
             break
         f = max(frontier, key=lambda e: (len(e.pairs), -e.rms_m, -e.a, -e.b))
         if reached[f.a]:
-            world[f.b] = _compose(world[f.a], f.a_from_b)
+            world[f.b] = compose_planar(world[f.a], f.a_from_b)
             reached[f.b] = True
         else:
-            world[f.a] = _compose(world[f.b], _inverse(f.a_from_b))
+            world[f.a] = compose_planar(world[f.b], invert_planar(f.a_from_b))
             reached[f.a] = True
     return reached, world
 
@@ -537,7 +513,7 @@ def optimise(
             pose = values.atPose2(this.keys()[0])
             point = values.atPoint2(this.keys()[1])
             yaw = pose.theta()
-            rt = _rot(yaw).T
+            rt = rotation_2d(yaw).T
             q = rt @ (np.asarray(point) - np.array([pose.x(), pose.y()]))
             if jacobians is not None:
                 jacobians[0] = np.array([[-1.0, 0.0, q[1]], [0.0, -1.0, -q[0]]])
@@ -555,7 +531,13 @@ def optimise(
             graph.add(gtsam.NonlinearEqualityPose2(x_key(r), pose))
     huber = gtsam.noiseModel.mEstimator.Huber.Create(HUBER_WIDTH)
     for c, group in enumerate(members):
-        start = np.mean([_apply(initial[r], runs[r].landmarks.xy[k][None])[0] for r, k in group], 0)
+        start = np.mean(
+            [
+                transform_points_planar(initial[r], runs[r].landmarks.xy[k][None])[0]
+                for r, k in group
+            ],
+            0,
+        )
         values.insert(l_key(c), gtsam.Point2(*start))
         for r, k in group:
             noise = gtsam.noiseModel.Gaussian.Covariance(noise_cov[r][k])
@@ -588,7 +570,7 @@ def _residuals(
         if len({r for r, _ in group}) < 2:
             continue
         for r, k in group:
-            d = _apply(world[r], runs[r].landmarks.xy[k][None])[0] - xy[c]
+            d = transform_points_planar(world[r], runs[r].landmarks.xy[k][None])[0] - xy[c]
             sq[r].append(float(d @ d))
     return np.array([math.sqrt(np.mean(s)) if s else math.nan for s in sq])
 
@@ -643,69 +625,41 @@ def _groundtruth(run: MergeInput) -> Trajectory | None:
         return None
 
 
-def _stats(err: F64) -> dict[str, float]:
-    return {
-        "rmse": float(np.sqrt(np.mean(err**2))),
-        "mean": float(np.mean(err)),
-        "median": float(np.median(err)),
-        "max": float(np.max(err)),
-    }
-
-
 def evaluate_merged(result: MergeResult) -> dict[str, Any]:
-    """ATE of every connected run against its ground truth under one shared SE(2) alignment.
+    """ATE of every connected run against its ground truth under one shared SE(2) alignment
+    (:func:`~slamcli.planar_eval.evaluate_common_frame`).
 
     Returns:
         ``{}`` when no run has reachable ground truth; else ``alignment`` (x, y, yaw of the
         shared alignment), ``per_run`` (label -> ``matched``, ``ate`` stats in m under the
-        shared alignment, ``ate_unaligned`` in the merged frame, and ``ate_own_run`` the
+        shared alignment, ``ate_unaligned`` in the merged frame, and ``ate_own_run_rmse`` the
         run's own rmse from its run.json), ``all`` (stats over every matched pose) and
         ``mean_of_rmse_m``.
     """
-    from slamcli.geometry.align import umeyama
+    from slamcli.planar_eval import evaluate_common_frame
 
-    matched: dict[int, tuple[F64, F64]] = {}
-    for r, traj in result.trajectories.items():
+    truths = {}
+    for r in result.trajectories:
         gt = _groundtruth(result.runs[r])
-        if gt is None:
-            continue
-        est_xy = se3_to_planar(traj.world_from_body)[:, :2]
-        gt_stamps = gt.stamps_ns
-        q = traj.stamps_ns
-        inside = (q >= gt_stamps[0]) & (q <= gt_stamps[-1])
-        hi = np.minimum(np.searchsorted(gt_stamps, q, side="left"), len(gt_stamps) - 1)
-        gap = gt_stamps[hi] - gt_stamps[np.maximum(hi - 1, 0)]
-        ok = inside & ((gt_stamps[hi] == q) | (gap <= round(GT_MAX_GAP_S * 1e9)))
-        if np.count_nonzero(ok) < 2:
-            continue
-        gt_xy = interpolate_planar(gt_stamps, se3_to_planar(gt.world_from_body), q[ok])[:, :2]
-        matched[r] = (gt_xy, est_xy[ok])
-    if not matched:
+        if gt is not None:
+            truths[r] = gt
+    common = evaluate_common_frame(truths, result.trajectories)
+    if common is None:
         return {}
-    all_gt = np.concatenate([m[0] for m in matched.values()])
-    all_est = np.concatenate([m[1] for m in matched.values()])
-    rot, t, _ = umeyama(all_est, all_gt)
     per_run: dict[str, Any] = {}
-    errors = []
-    for r, (gt_xy, est_xy) in matched.items():
-        err = np.linalg.norm(est_xy @ rot.T + t - gt_xy, axis=1)
-        errors.append(err)
+    for r, robot in common.robots.items():
         own = result.runs[r].record.record.get("metrics", {}).get("evaluation", {})
         per_run[result.runs[r].label] = {
-            "matched": len(err),
-            "ate": _stats(err),
-            "ate_unaligned": _stats(np.linalg.norm(est_xy - gt_xy, axis=1)),
+            "matched": robot.matched,
+            "ate": robot.ate.to_dict(),
+            "ate_unaligned": robot.own.ate_unaligned.to_dict(),
             "ate_own_run_rmse": own.get("ate", {}).get("rmse") if isinstance(own, dict) else None,
         }
     return {
-        "alignment": {
-            "x_m": float(t[0]),
-            "y_m": float(t[1]),
-            "yaw_deg": math.degrees(math.atan2(rot[1, 0], rot[0, 0])),
-        },
+        "alignment": _pose_dict(common.transform),
         "per_run": per_run,
-        "all": _stats(np.concatenate(errors)),
-        "mean_of_rmse_m": float(np.mean([v["ate"]["rmse"] for v in per_run.values()])),
+        "all": common.ate.to_dict(),
+        "mean_of_rmse_m": float(np.mean([r.ate.rmse for r in common.robots.values()])),
     }
 
 
@@ -875,5 +829,4 @@ __all__ = [
     "merge_runs",
     "optimise",
     "plot_merge",
-    "rigid_fit_2d",
 ]

@@ -40,7 +40,8 @@ from slamcli.ekf.filter import LandmarkEkf, arc_step, inverse_observation, relat
 from slamcli.ekf.smoother import Event, Observation, Row, Step, Velocity, smooth_path
 from slamcli.errors import PipelineError
 from slamcli.geometry.chi2 import chi2_quantile
-from slamcli.geometry.planar import planar_to_se3, se3_to_planar, wrap_angle
+from slamcli.geometry.planar import between_planar, planar_to_se3, se3_to_planar, wrap_angle
+from slamcli.pipelines import PipelineBase
 from slamcli.types import LandmarkFrame, LandmarkMap, OdometryFrame, SlamResult, Trajectory
 
 log = logging.getLogger(__name__)
@@ -188,7 +189,7 @@ class _Pending:
     covs: list[F64] = field(default_factory=list)
 
 
-class EkfSlam:
+class EkfSlam(PipelineBase):
     """EKF landmark SLAM pipeline (see the module docstring)."""
 
     name = "ekf"
@@ -318,7 +319,7 @@ class EkfSlam:
             ekf = self._filter()
             pose = se3_to_planar(frame.world_from_body)[0]
             if self._odom_pose is not None:
-                delta = _relative(self._odom_pose, pose)
+                delta = between_planar(self._odom_pose, pose)
                 step_cov = self.config.step_covariance(delta)
                 ekf.predict_relative(delta, step_cov)
                 self._events.append(Step(delta, step_cov))
@@ -686,13 +687,6 @@ class EkfSlam:
 @functools.lru_cache(maxsize=256)
 def _joint_gate(p: float, pairs: int) -> float:
     return chi2_quantile(p, 2 * pairs)
-
-
-def _relative(a: F64, b: F64) -> F64:
-    """The pose of ``b`` in ``a``'s frame, (3,) planar."""
-    c, s = np.cos(a[2]), np.sin(a[2])
-    dx, dy = b[0] - a[0], b[1] - a[1]
-    return np.array([c * dx + s * dy, -s * dx + c * dy, wrap_angle(b[2] - a[2])])
 
 
 _DIVERGED_VARIANCE_M2 = 1e12

@@ -42,19 +42,24 @@ from slamcli.config import setting
 from slamcli.ekf.association import UNMATCHED, Candidates, jcbb, nearest_neighbour
 from slamcli.ekf.filter import inverse_observation, observe_jacobians, relative_motion
 from slamcli.errors import PipelineError
+from slamcli.geometry.align import rigid_fit_2d
 from slamcli.geometry.chi2 import chi2_quantile
-from slamcli.geometry.planar import planar_to_se3, se3_to_planar, wrap_angle
+from slamcli.geometry.planar import (
+    between_planar,
+    compose_planar,
+    planar_to_se3,
+    se3_to_planar,
+    wrap_angle,
+)
 from slamcli.graphs.landmark_graph import (
     Backend,
     Relative,
-    between,
     between_covariance,
     blend_dense,
-    compose,
     landmark_key,
     pose_key,
-    rigid_fit_2d,
 )
+from slamcli.pipelines import PipelineBase
 from slamcli.pipelines.ekf import LandmarkNoise
 from slamcli.types import LandmarkFrame, LandmarkMap, OdometryFrame, SlamResult, Trajectory
 
@@ -203,7 +208,7 @@ class _View:
         return nu, s, d2
 
 
-class GraphSlam:
+class GraphSlam(PipelineBase):
     """Landmark SLAM as a GTSAM factor graph (see the module docstring)."""
 
     name = "graph"
@@ -227,7 +232,6 @@ class GraphSlam:
         self._deferred = False
         self._with_id = 0
         self._without_id = 0
-        self.robot_trajectories: dict[int, Trajectory] = {}
         self.counts: Counter[str] = Counter()
         self.placed_at: dict[int, float] = {}
 
@@ -293,7 +297,7 @@ class GraphSlam:
         elif frame.world_from_body is not None:
             pose = se3_to_planar(frame.world_from_body)[0]
             if robot.odom_pose is not None:
-                delta = between(robot.odom_pose, pose)
+                delta = between_planar(robot.odom_pose, pose)
                 robot.rel.step(delta, self.config.step_covariance(delta))
             robot.odom_pose = pose
             robot.t_ns = frame.stamp_ns if robot.t_ns is None else max(robot.t_ns, frame.stamp_ns)
@@ -325,7 +329,9 @@ class GraphSlam:
         robot.keys.append(_Key(stamp_ns, robot.rel.pose.copy(), robot.rel.cov.copy()))
         robot.rel = Relative()
         prev = robot.local[-1] if robot.local else np.zeros(3)
-        robot.local.append(compose(prev, robot.keys[-1].delta) if len(robot.keys) > 1 else prev)
+        robot.local.append(
+            compose_planar(prev, robot.keys[-1].delta) if len(robot.keys) > 1 else prev
+        )
         self._row(robot, stamp_ns)
         return len(robot.keys) - 1
 
@@ -615,7 +621,6 @@ class GraphSlam:
             trajectories[robot.ident] = Trajectory(
                 np.asarray(robot.rows_t, dtype=np.int64), planar_to_se3(dense)
             )
-        self.robot_trajectories = trajectories
         keep = sorted(
             i for i, m in self._marks.items() if m.known or m.hits >= self.config.promote_after
         )
@@ -644,6 +649,7 @@ class GraphSlam:
         return SlamResult(
             trajectory=trajectories[self._anchor],
             landmarks=LandmarkMap(np.asarray(keep, dtype=np.int64), xy, covs),
+            robots=trajectories if len(trajectories) > 1 else {},
             metrics=metrics,
             counts=counts,
         )
