@@ -19,6 +19,10 @@ so does a truncated log. Times are int64 nanoseconds.
 Memory and time are bounded on hostile input: a chunk or a message whose declared or actual
 uncompressed size passes ``max_chunk_bytes`` is refused as damage before it is read, and
 decompression runs in bounded steps that stop as soon as the output passes the declared size.
+
+The bytes themselves are read by :mod:`~slamcli.formats.mcap.layout` (records),
+:mod:`~slamcli.formats.mcap.summary` (the summary section) and
+:mod:`~slamcli.formats.mcap.chunks` (chunk records and their decompression).
 """
 
 from __future__ import annotations
@@ -34,16 +38,38 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from operator import itemgetter
 from pathlib import Path
-from typing import BinaryIO, Protocol
+from typing import BinaryIO
 
 from mcap.data_stream import ReadDataStream
-from mcap.exceptions import McapError
-from mcap.opcode import Opcode
 from mcap.records import Channel, ChunkIndex, Schema, Statistics
 
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats.base import Closing
+from slamcli.formats.mcap.chunks import (
+    DAMAGE,
+    BadChunkError,
+    Decompressor,
+    MessageEntry,
+    OversizeError,
+    inflate,
+    mb,
+    over_limit,
+    parse_chunk,
+    read_chunk_body,
+)
+from slamcli.formats.mcap.layout import (
+    CHANNEL,
+    CHUNK,
+    CHUNK_HEAD,
+    MESSAGE,
+    MESSAGE_HEAD,
+    SCHEMA,
+    U64,
+    RecordWalker,
+    find_break,
+)
 from slamcli.formats.mcap.records import ChannelInfo, ChannelStats, LogHealth, RawMessage
+from slamcli.formats.mcap.summary import read_footer, read_summary, stats_from_index
 from slamcli.formats.sniff import MCAP_MAGIC as MAGIC
 from slamcli.formats.text import format_stamp
 
@@ -53,58 +79,10 @@ DEFAULT_REORDER_WINDOW_NS = 1_000_000_000
 DEFAULT_MAX_CHUNK_BYTES = 256 * 2**20
 """Largest chunk (uncompressed) or message read; larger ones are skipped as damage."""
 
-_HEADER = int(Opcode.HEADER)
-_FOOTER = int(Opcode.FOOTER)
-_SCHEMA = int(Opcode.SCHEMA)
-_CHANNEL = int(Opcode.CHANNEL)
-_MESSAGE = int(Opcode.MESSAGE)
-_CHUNK = int(Opcode.CHUNK)
-_MESSAGE_INDEX = int(Opcode.MESSAGE_INDEX)
-_CHUNK_INDEX = int(Opcode.CHUNK_INDEX)
-_STATISTICS = int(Opcode.STATISTICS)
-
-_RECORD = struct.Struct("<BQ")
-"""Record prefix: opcode, body length."""
-_MESSAGE_HEAD = struct.Struct("<HIQQ")
-"""Message body prefix: channel id, sequence, log time, publish time."""
-_CHUNK_HEAD = struct.Struct("<QQQII")
-"""Chunk body prefix: start time, end time, uncompressed size, CRC, compression name length."""
-_U64 = struct.Struct("<Q")
-_INDEX_HEAD = struct.Struct("<HI")
-"""Message index body prefix: channel id, byte length of the (time, offset) pairs."""
-_FOOTER_RECORD = struct.Struct("<BQQQI")
-_TAIL_SIZE = _FOOTER_RECORD.size + len(MAGIC)
 _NO_END = 1 << 64
 
-_MessageEntry = tuple[int, int, int, int, int, int]
-"""(log time, channel id, sequence, publish time, data start, data end) inside a chunk."""
 _StreamEntry = tuple[int, int, int, int, bytes]
 """(log time, channel id, sequence, publish time, data) of a message read front to back."""
-
-_DAMAGE = (McapError, struct.error, ValueError, RuntimeError, OSError)
-"""What parsing damaged bytes raises: mcap and struct errors, bad UTF-8, lz4's RuntimeError."""
-_MB = 2**20
-_INFLATE_STEP = 16 * _MB
-"""Most output bytes asked of a streaming decompressor per call."""
-_BYTES_PER_RECORD = 256
-"""A chunk may hold one record per this many bytes of ``max_chunk_bytes``: each message costs
-about 200 bytes of bookkeeping, and each record parsing time, whatever its own size."""
-
-
-class _Decompressor(Protocol):
-    def __call__(self, data: memoryview, uncompressed_size: int) -> bytes: ...
-
-
-class _BadChunkError(Exception):
-    """A chunk's bytes are unusable; the message says why."""
-
-
-class _OversizeError(_BadChunkError):
-    """A chunk or message is larger than ``max_chunk_bytes`` allows; the message says how."""
-
-
-def _over(what: str, size: int, limit: int) -> _OversizeError:
-    return _OversizeError(f"{what} {size} bytes ({size / _MB:.1f} MB), over the {_mb(limit)} limit")
 
 
 class McapLog(Closing):
@@ -135,7 +113,7 @@ class McapLog(Closing):
         if max_chunk_bytes < 1:
             raise ConfigError(
                 f"max_chunk_bytes must be >= 1 byte, got {max_chunk_bytes}",
-                hint=f"the default is {DEFAULT_MAX_CHUNK_BYTES} ({_mb(DEFAULT_MAX_CHUNK_BYTES)})",
+                hint=f"the default is {DEFAULT_MAX_CHUNK_BYTES} ({mb(DEFAULT_MAX_CHUNK_BYTES)})",
             )
         if reorder_window_ns < 0:
             raise ConfigError(
@@ -202,7 +180,9 @@ class McapLog(Closing):
         full pass over the messages, which also completes :attr:`health`.
         """
         if self._stats is None:
-            self._stats = self._stats_from_index()
+            self._stats = stats_from_index(
+                self._file, self._chunk_indexes, self._channels, self.max_chunk_bytes, self.path
+            )
         if self._stats is None:
             counted = {cid: ChannelStats() for cid in self._channels}
             for msg in self.messages():
@@ -266,12 +246,12 @@ class McapLog(Closing):
                 f"found {head.hex(' ')}",
                 hint="check the path; a ROS 2 .db3 bag needs 'ros2 bag convert' to MCAP first",
             )
-        footer = self._read_footer()
+        footer = read_footer(self._file, self._size)
         if footer is None:
             self.health.summary_present = False
             self.health.truncated = True
             if self.strict:
-                stop, last = self._find_break()
+                stop, last = find_break(self._file, self._size)
                 self._truncated_at(stop, last)
             return
         summary_start, summary_crc = footer
@@ -279,8 +259,15 @@ class McapLog(Closing):
             self.health.summary_present = False
             return
         try:
-            self._read_summary(summary_start, summary_crc)
-        except (_BadChunkError, *_DAMAGE) as exc:
+            summary = read_summary(
+                self._file, self._size, summary_start, summary_crc, self.max_chunk_bytes
+            )
+            self._schemas.update(summary.schemas)
+            self._chunk_indexes.extend(summary.chunk_indexes)
+            self._statistics = summary.statistics
+            for channel in summary.channels:
+                self._add_channel(channel)
+        except (BadChunkError, *DAMAGE) as exc:
             logger.warning(
                 "%s: the summary section is unreadable (%s); reading the log front to back",
                 self.path,
@@ -305,73 +292,6 @@ class McapLog(Closing):
                 self.health.chunk_overlap = True
                 break
             latest_end = max(latest_end, ci.message_end_time)
-
-    def _read_footer(self) -> tuple[int, int] | None:
-        """``(summary_start, summary_crc)`` from a well-formed footer, else ``None``."""
-        if self._size < len(MAGIC) + _TAIL_SIZE:
-            return None
-        self._file.seek(self._size - _TAIL_SIZE)
-        tail = self._file.read(_TAIL_SIZE)
-        if tail[-len(MAGIC) :] != MAGIC:
-            return None
-        op, length, summary_start, _, summary_crc = _FOOTER_RECORD.unpack_from(tail)
-        if op != _FOOTER or length != _FOOTER_RECORD.size - _RECORD.size:
-            return None
-        if summary_start != 0 and not len(MAGIC) <= summary_start <= self._size - _TAIL_SIZE:
-            return None
-        return summary_start, summary_crc
-
-    def _read_summary(self, summary_start: int, summary_crc: int) -> None:
-        footer_at = self._size - _TAIL_SIZE
-        if footer_at - summary_start > self.max_chunk_bytes:
-            raise _over("the summary section is", footer_at - summary_start, self.max_chunk_bytes)
-        self._file.seek(summary_start)
-        data = self._file.read(footer_at - summary_start)
-        if summary_crc:
-            # The summary CRC runs from the summary start through the footer, minus its CRC.
-            footer_fields = self._file.read(_FOOTER_RECORD.size - 4)
-            crc = zlib.crc32(footer_fields, zlib.crc32(data))
-            if crc != summary_crc:
-                raise _BadChunkError(f"summary CRC {crc:08x} != {summary_crc:08x}")
-        stream = ReadDataStream(io.BytesIO(data))
-        channels: list[Channel] = []
-        while stream.count < len(data):
-            op = stream.read1()
-            length = stream.read8()
-            body_start = stream.count
-            if op == _SCHEMA:
-                schema = Schema.read(stream)
-                self._schemas[schema.id] = schema
-            elif op == _CHANNEL:
-                channels.append(Channel.read(stream))
-            elif op == _CHUNK_INDEX:
-                self._chunk_indexes.append(ChunkIndex.read(stream))
-            elif op == _STATISTICS:
-                self._statistics = Statistics.read(stream)
-            rest = length - (stream.count - body_start)
-            if rest < 0:
-                raise _BadChunkError(f"record with opcode {op:#04x} overruns its length")
-            if rest > len(data) - stream.count:
-                raise _BadChunkError(
-                    f"record with opcode {op:#04x} declares {length} bytes, more than the "
-                    f"summary section holds"
-                )
-            stream.read(rest)
-        for channel in channels:
-            self._add_channel(channel)
-
-    def _find_break(self) -> tuple[int, int | None]:
-        """Byte offset of the first broken record, and the last log time before it."""
-        walker = _RecordWalker(self._file, self._size)
-        last: int | None = None
-        for _, op, length in walker:
-            if op == _CHUNK and length >= 16:
-                end = _U64.unpack_from(self._file.read(16), 8)[0]
-                last = end if last is None else max(last, end)
-            elif op == _MESSAGE and length >= _MESSAGE_HEAD.size:
-                log = _MESSAGE_HEAD.unpack(self._file.read(_MESSAGE_HEAD.size))[2]
-                last = log if last is None else max(last, log)
-        return (self._size if walker.broken_at is None else walker.broken_at), last
 
     def _add_channel(self, channel: Channel) -> ChannelInfo:
         known = self._channels.get(channel.id)
@@ -398,7 +318,7 @@ class McapLog(Closing):
     ) -> None:
         """Register a Schema or Channel record met inside the data section."""
         stream = ReadDataStream(io.BytesIO(body))
-        if op == _SCHEMA:
+        if op == SCHEMA:
             schema = Schema.read(stream)
             self._schemas.setdefault(schema.id, schema)
             return
@@ -406,147 +326,9 @@ class McapLog(Closing):
         if topics is None or info.topic in topics:
             wanted.add(info.id)
 
-    def _decompressor(self, compression: str, cache: dict[str, _Decompressor]) -> _Decompressor:
-        """A bounded decompression function, cached per pass: a zstd context is not thread-safe.
-
-        Each one returns exactly ``uncompressed_size`` bytes or raises :class:`_BadChunkError`,
-        and never produces more than one byte past that size, whatever the data claims.
-        """
-        known = cache.get(compression)
-        if known is not None:
-            return known
-        if compression == "":
-
-            def fn(data: memoryview, uncompressed_size: int) -> bytes:
-                problem = _size_problem(len(data), False, uncompressed_size)
-                if problem is not None:
-                    raise _BadChunkError(problem)
-                return bytes(data)
-
-        elif compression == "zstd":
-            try:
-                import zstandard
-            except ImportError:
-                raise InputError(
-                    f"{self.path}: zstd-compressed chunks need the 'zstandard' package",
-                    hint="pip install zstandard",
-                ) from None
-            dctx = zstandard.ZstdDecompressor()
-
-            def fn(data: memoryview, uncompressed_size: int) -> bytes:
-                try:
-                    frame_size = zstandard.frame_content_size(data)
-                except zstandard.ZstdError as exc:
-                    raise _BadChunkError(f"does not decompress (zstd: {exc})") from None
-                if frame_size == uncompressed_size:
-                    # The usual case: one frame whose header agrees with the chunk. decompress()
-                    # sizes its output from that header, so it can write no more than declared.
-                    try:
-                        whole = dctx.decompress(data, max_output_size=uncompressed_size)
-                    except zstandard.ZstdError as exc:
-                        raise _BadChunkError(_zstd_problem(exc, uncompressed_size)) from None
-                    problem = _size_problem(len(whole), False, uncompressed_size)
-                    if problem is not None:
-                        del whole
-                        raise _BadChunkError(problem)
-                    return whole
-                # Otherwise the frame header is missing or lies, and decompress() would trust it
-                # (or the declared size) for its allocation; a stream reader fills a buffer of
-                # the declared size step by step and stops one byte past it.
-                out = bytearray(uncompressed_size)
-                view = memoryview(out)
-                got = 0
-                problem = None
-                try:
-                    reader = dctx.stream_reader(data, read_across_frames=True)
-                    while got < uncompressed_size:
-                        n = reader.readinto(view[got : got + _INFLATE_STEP])
-                        if not n:
-                            break
-                        got += n
-                    problem = _size_problem(got, bool(reader.read(1)), uncompressed_size)
-                except zstandard.ZstdError as exc:
-                    problem = _zstd_problem(exc, uncompressed_size)
-                del view
-                if problem is not None:
-                    # Not raised while the buffer is alive: the traceback would keep it.
-                    del out
-                    raise _BadChunkError(problem)
-                return bytes(out)
-
-        elif compression == "lz4":
-            try:
-                import lz4.frame
-            except ImportError:
-                raise InputError(
-                    f"{self.path}: lz4-compressed chunks need the 'lz4' package",
-                    hint="pip install lz4",
-                ) from None
-
-            def fn(data: memoryview, uncompressed_size: int) -> bytes:
-                pieces: list[bytes] = []
-                got = 0
-                feed: bytes | memoryview = data
-                dec = lz4.frame.LZ4FrameDecompressor()
-                problem = None
-                try:
-                    while got <= uncompressed_size:
-                        step = min(_INFLATE_STEP, uncompressed_size + 1 - got)
-                        piece = dec.decompress(feed, max_length=step)
-                        feed = b""
-                        got += len(piece)
-                        pieces.append(piece)
-                        if dec.eof:
-                            if not dec.unused_data:
-                                break
-                            # Concatenated frames: the next one starts where this one ended.
-                            feed = dec.unused_data
-                            dec = lz4.frame.LZ4FrameDecompressor()
-                        elif not piece:
-                            problem = "does not decompress (lz4: the frame is cut short)"
-                            break
-                    problem = problem or _size_problem(got, False, uncompressed_size)
-                except RuntimeError as exc:
-                    problem = f"does not decompress (lz4: {exc})"
-                if problem is not None:
-                    # Not raised while the pieces are alive: the traceback would keep them.
-                    del pieces
-                    raise _BadChunkError(problem)
-                return b"".join(pieces)
-
-        else:
-            raise _BadChunkError(f"has unknown compression {compression!r} (expected zstd, lz4)")
-        cache[compression] = fn
-        return fn
-
-    def _inflate(self, body: memoryview, cache: dict[str, _Decompressor]) -> tuple[bytes, int]:
+    def _inflate(self, body: memoryview, cache: dict[str, Decompressor]) -> tuple[bytes, int]:
         """Uncompressed records of a chunk record body, and the CRC they should have."""
-        if len(body) < _CHUNK_HEAD.size:
-            raise _BadChunkError(
-                f"is {len(body)} bytes long, too short for a chunk header ({_CHUNK_HEAD.size})"
-            )
-        _, _, size, crc, name_len = _CHUNK_HEAD.unpack_from(body)
-        if size > self.max_chunk_bytes:
-            raise _over("declares an uncompressed size of", size, self.max_chunk_bytes)
-        at = _CHUNK_HEAD.size
-        if at + name_len + _U64.size > len(body):
-            raise _BadChunkError(f"its compression name ({name_len} bytes) runs past the record")
-        try:
-            compression = str(body[at : at + name_len], "utf-8")
-        except UnicodeDecodeError:
-            raise _BadChunkError(
-                f"its compression name {bytes(body[at : at + name_len])!r} is not UTF-8 "
-                "(expected zstd, lz4 or empty)"
-            ) from None
-        at += name_len
-        data_len = _U64.unpack_from(body, at)[0]
-        at += _U64.size
-        if at + data_len > len(body):
-            raise _BadChunkError(
-                f"its data ({data_len} bytes) runs past the end of the record ({len(body)} bytes)"
-            )
-        raw = self._decompressor(compression, cache)(body[at : at + data_len], size)
-        return raw, crc
+        return inflate(body, cache, self.max_chunk_bytes, self.path)
 
     def _check_crc(self, raw: bytes, crc: int) -> None:
         """Compare a chunk's uncompressed bytes with its CRC (0 = the writer left it out)."""
@@ -556,54 +338,17 @@ class McapLog(Closing):
         if expected:
             self.health.crc_checked = True
             if actual != expected:
-                raise _BadChunkError(f"fails its CRC (expected {expected:08x}, found {actual:08x})")
+                raise BadChunkError(f"fails its CRC (expected {expected:08x}, found {actual:08x})")
 
     def _parse_chunk(
-        self,
-        raw: bytes,
-        topics: frozenset[str] | None,
-        wanted: set[int],
-        lo: int,
-        hi: int,
-    ) -> list[_MessageEntry]:
+        self, raw: bytes, topics: frozenset[str] | None, wanted: set[int], lo: int, hi: int
+    ) -> list[MessageEntry]:
         """Wanted messages of a chunk in ``[lo, hi)`` (file order); registers its channels."""
-        out: list[_MessageEntry] = []
-        append = out.append
-        unpack_record = _RECORD.unpack_from
-        unpack_message = _MESSAGE_HEAD.unpack_from
-        pos = 0
-        n = len(raw)
-        left = self.max_chunk_bytes // _BYTES_PER_RECORD
-        while pos < n:
-            left -= 1
-            if left < 0:
-                cap = self.max_chunk_bytes // _BYTES_PER_RECORD
-                raise _OversizeError(
-                    f"holds more than {cap} records, the most the {_mb(self.max_chunk_bytes)} "
-                    f"limit allows (one per {_BYTES_PER_RECORD} bytes)"
-                )
-            if pos + 9 > n:
-                raise _BadChunkError(
-                    f"its records end in {n - pos} stray bytes at chunk byte {pos} "
-                    "(expected a 9-byte record header)"
-                )
-            op, length = unpack_record(raw, pos)
-            if op == 0:
-                # Opcode 0 is never written; a run of them is zeroed or foreign data.
-                raise _BadChunkError(f"holds opcode 0x00 at chunk byte {pos}, not an MCAP record")
-            body = pos + 9
-            pos = body + length
-            if pos > n:
-                raise _BadChunkError(f"a record at chunk byte {body - 9} runs past its end")
-            if op == _MESSAGE:
-                if length < 22:
-                    raise _BadChunkError(f"a message record at chunk byte {body - 9} is short")
-                chan, seq, log, pub = unpack_message(raw, body)
-                if chan in wanted and lo <= log < hi:
-                    append((log, chan, seq, pub, body + 22, pos))
-            elif op in (_CHANNEL, _SCHEMA):
-                self._add_definition(op, memoryview(raw)[body:pos], topics, wanted)
-        return out
+
+        def define(op: int, body: memoryview) -> None:
+            self._add_definition(op, body, topics, wanted)
+
+        return parse_chunk(raw, wanted, lo, hi, self.max_chunk_bytes, define)
 
     def _bad_chunk(
         self,
@@ -666,45 +411,6 @@ class McapLog(Closing):
                 upto,
             )
 
-    def _stats_from_index(self) -> dict[int, ChannelStats] | None:
-        """Per-channel stats from the message indexes, or ``None`` where some are missing."""
-        if not self._chunk_indexes or not all(
-            ci.message_index_offsets for ci in self._chunk_indexes
-        ):
-            return None
-        stats = {cid: ChannelStats() for cid in self._channels}
-        try:
-            for ci in self._chunk_indexes:
-                if ci.message_index_length > self.max_chunk_bytes:
-                    return None
-                first_at = min(ci.message_index_offsets.values())
-                self._file.seek(first_at)
-                block = self._file.read(ci.message_index_length)
-                pos = 0
-                while pos < len(block):
-                    op, length = _RECORD.unpack_from(block, pos)
-                    body = pos + 9
-                    pos = body + length
-                    if op != _MESSAGE_INDEX:
-                        continue
-                    chan, pairs_len = _INDEX_HEAD.unpack_from(block, body)
-                    n = pairs_len // 16
-                    if not n:
-                        continue
-                    pairs = struct.unpack_from(f"<{2 * n}Q", block, body + _INDEX_HEAD.size)
-                    times = pairs[0::2]
-                    st = stats.get(chan)
-                    if st is None:
-                        return None
-                    st.count += n
-                    lo, hi = min(times), max(times)
-                    st.first_ns = lo if st.first_ns is None else min(st.first_ns, lo)
-                    st.last_ns = hi if st.last_ns is None else max(st.last_ns, hi)
-        except struct.error:
-            logger.debug("%s: unreadable message index; counting messages instead", self.path)
-            return None
-        return stats
-
     def _indexed_messages(
         self, topics: frozenset[str] | None, lo: int, hi: int
     ) -> Iterator[RawMessage]:
@@ -732,7 +438,7 @@ class McapLog(Closing):
         heap: list[tuple[int, int, _OpenChunk]] = []
         n = len(chunks)
         i = 0
-        cache: dict[str, _Decompressor] = {}
+        cache: dict[str, Decompressor] = {}
         # One worker reads and decompresses the next chunk (both release the GIL) while this
         # thread checks, parses and yields the current one; chunks are opened in a fixed
         # order, so the lookahead never changes what is yielded.
@@ -782,29 +488,15 @@ class McapLog(Closing):
                     heapq.heappop(heap)
 
     def _fetch(
-        self, f: BinaryIO, ci: ChunkIndex, cache: dict[str, _Decompressor]
+        self, f: BinaryIO, ci: ChunkIndex, cache: dict[str, Decompressor]
     ) -> tuple[bytes, int]:
         """Read and decompress one indexed chunk (runs in the lookahead worker).
 
         The CRC is checked by the caller: decompression here and checksumming there both
         release the GIL, so they overlap on two cores.
         """
-        if ci.uncompressed_size > self.max_chunk_bytes:
-            raise _over(
-                "declares (in the chunk index) an uncompressed size of",
-                ci.uncompressed_size,
-                self.max_chunk_bytes,
-            )
-        if ci.chunk_length > self._max_chunk_record:
-            raise _over("is a chunk record of", ci.chunk_length, self.max_chunk_bytes)
-        f.seek(ci.chunk_start_offset)
-        record = f.read(ci.chunk_length)
-        if len(record) != ci.chunk_length:
-            raise _BadChunkError("lies past the end of the file")
-        op, length = _RECORD.unpack_from(record)
-        if op != _CHUNK or _RECORD.size + length > len(record):
-            raise _BadChunkError("is not a chunk record where the index points")
-        return self._inflate(memoryview(record)[_RECORD.size : _RECORD.size + length], cache)
+        body = read_chunk_body(f, ci, self.max_chunk_bytes, self._max_chunk_record)
+        return self._inflate(body, cache)
 
     def _open_chunk(
         self,
@@ -823,31 +515,31 @@ class McapLog(Closing):
         # keeps the chunk's buffers alive until the garbage collector happens to run.
         failure = fetched.exception()
         if failure is not None:
-            reason = str(failure) if isinstance(failure, _BadChunkError) else None
-            if reason is None and not isinstance(failure, _DAMAGE):
+            reason = str(failure) if isinstance(failure, BadChunkError) else None
+            if reason is None and not isinstance(failure, DAMAGE):
                 raise failure
             self._bad_chunk(
                 ci.message_start_time,
                 ci.message_end_time,
                 ci.chunk_start_offset,
                 reason or f"does not parse ({failure})",
-                oversize=isinstance(failure, _OversizeError),
+                oversize=isinstance(failure, OversizeError),
             )
             return None
         try:
             raw, crc = fetched.result()
             self._check_crc(raw, crc)
             msgs = self._parse_chunk(raw, topics, wanted, lo, hi)
-        except _BadChunkError as exc:
+        except BadChunkError as exc:
             self._bad_chunk(
                 ci.message_start_time,
                 ci.message_end_time,
                 ci.chunk_start_offset,
                 str(exc),
-                oversize=isinstance(exc, _OversizeError),
+                oversize=isinstance(exc, OversizeError),
             )
             return None
-        except _DAMAGE as exc:
+        except DAMAGE as exc:
             self._bad_chunk(
                 ci.message_start_time,
                 ci.message_end_time,
@@ -905,29 +597,29 @@ class McapLog(Closing):
     ) -> Iterator[list[_StreamEntry]]:
         """Wanted messages in file order, one list per chunk or top-level message."""
         wanted = {cid for cid, ch in self._channels.items() if topics is None or ch.topic in topics}
-        walker = _RecordWalker(f, self._size)
+        walker = RecordWalker(f, self._size)
         last_good: int | None = None
         latest_chunk_end = -1
-        cache: dict[str, _Decompressor] = {}
+        cache: dict[str, Decompressor] = {}
         for offset, op, length in walker:
-            if op == _MESSAGE:
-                if length < _MESSAGE_HEAD.size:
+            if op == MESSAGE:
+                if length < MESSAGE_HEAD.size:
                     walker.broken_at = offset
                     break
                 if length > self.max_chunk_bytes:
-                    log = _MESSAGE_HEAD.unpack(f.read(_MESSAGE_HEAD.size))[2]
-                    too_big = _over("is a message record of", length, self.max_chunk_bytes)
+                    log = MESSAGE_HEAD.unpack(f.read(MESSAGE_HEAD.size))[2]
+                    too_big = over_limit("is a message record of", length, self.max_chunk_bytes)
                     self._bad_chunk(log, log, offset, str(too_big), what="message", oversize=True)
                     continue
                 body = f.read(length)
-                chan, seq, log, pub = _MESSAGE_HEAD.unpack_from(body)
+                chan, seq, log, pub = MESSAGE_HEAD.unpack_from(body)
                 last_good = log if last_good is None else max(last_good, log)
                 if chan in wanted and lo <= log < hi:
-                    yield [(log, chan, seq, pub, body[_MESSAGE_HEAD.size :])]
+                    yield [(log, chan, seq, pub, body[MESSAGE_HEAD.size :])]
                 elif chan not in self._channels:
                     self._unknown_channel(chan)
-            elif op == _CHUNK:
-                if length < _CHUNK_HEAD.size:
+            elif op == CHUNK:
+                if length < CHUNK_HEAD.size:
                     # Too short to say which times it held: charged to the last time read.
                     near = 0 if last_good is None else last_good
                     self._bad_chunk(
@@ -935,16 +627,16 @@ class McapLog(Closing):
                         near,
                         offset,
                         f"is {length} bytes long, too short for a chunk header "
-                        f"({_CHUNK_HEAD.size} bytes)",
+                        f"({CHUNK_HEAD.size} bytes)",
                     )
                     continue
                 if length > self._max_chunk_record:
                     start, end = struct.unpack("<QQ", f.read(16))
-                    too_big = _over("is a chunk record of", length, self.max_chunk_bytes)
+                    too_big = over_limit("is a chunk record of", length, self.max_chunk_bytes)
                     self._bad_chunk(start, end, offset, str(too_big), oversize=True)
                     continue
                 record = memoryview(f.read(length))
-                start, end = _U64.unpack_from(record)[0], _U64.unpack_from(record, 8)[0]
+                start, end = U64.unpack_from(record)[0], U64.unpack_from(record, 8)[0]
                 if start < latest_chunk_end:
                     self.health.chunk_overlap = True
                 latest_chunk_end = max(latest_chunk_end, end)
@@ -956,21 +648,21 @@ class McapLog(Closing):
                     del record
                     self._check_crc(raw, crc)
                     msgs = self._parse_chunk(raw, topics, wanted, lo, hi)
-                except _BadChunkError as exc:
+                except BadChunkError as exc:
                     self._bad_chunk(
-                        start, end, offset, str(exc), oversize=isinstance(exc, _OversizeError)
+                        start, end, offset, str(exc), oversize=isinstance(exc, OversizeError)
                     )
                     continue
-                except _DAMAGE as exc:
+                except DAMAGE as exc:
                     self._bad_chunk(start, end, offset, f"does not parse ({exc})")
                     continue
                 last_good = end if last_good is None else max(last_good, end)
                 if msgs:
                     yield [(log, chan, seq, pub, raw[a:b]) for log, chan, seq, pub, a, b in msgs]
-            elif op in (_CHANNEL, _SCHEMA):
+            elif op in (CHANNEL, SCHEMA):
                 try:
                     self._add_definition(op, f.read(length), topics, wanted)
-                except _DAMAGE:
+                except DAMAGE:
                     walker.broken_at = offset
                     break
         if walker.broken_at is not None:
@@ -992,72 +684,11 @@ class _OpenChunk:
 
     __slots__ = ("buf", "msgs", "pos", "times")
 
-    def __init__(self, buf: bytes, msgs: list[_MessageEntry]) -> None:
+    def __init__(self, buf: bytes, msgs: list[MessageEntry]) -> None:
         self.buf = buf
         self.msgs = msgs
         self.times = [m[0] for m in msgs]
         self.pos = 0
-
-
-class _RecordWalker:
-    """Iterate ``(offset, opcode, length)`` over the records of a file from after the magic.
-
-    Before each item the file is positioned at the record body; the consumer may read any part
-    of it. Stops at the footer (``found_footer``) or at the first record that cannot be whole
-    (``broken_at``): a cut record header, a body running past the end of the file, or opcode 0.
-    """
-
-    def __init__(self, f: BinaryIO, size: int) -> None:
-        self._f = f
-        self._size = size
-        self.broken_at: int | None = None
-        self.found_footer = False
-
-    def __iter__(self) -> Iterator[tuple[int, int, int]]:
-        f = self._f
-        size = self._size
-        if size < len(MAGIC):
-            return
-        pos = len(MAGIC)
-        f.seek(pos)
-        while True:
-            head = f.read(_RECORD.size)
-            if len(head) < _RECORD.size:
-                self.broken_at = pos
-                return
-            op, length = _RECORD.unpack(head)
-            end = pos + _RECORD.size + length
-            if op == 0 or end > size:
-                self.broken_at = pos
-                return
-            if op == _FOOTER:
-                self.found_footer = True
-                return
-            yield pos, op, length
-            if self.broken_at is not None:
-                return
-            f.seek(end)
-            pos = end
-
-
-def _size_problem(got: int, more: bool, size: int) -> str | None:
-    """Why ``got`` decompressed bytes (``more`` if there was still output) are not ``size``."""
-    if got > size or more:
-        return f"decompresses to more than the {size} bytes it declares"
-    if got < size:
-        return f"decompresses to {got} bytes, expected {size}"
-    return None
-
-
-def _zstd_problem(exc: Exception, size: int) -> str:
-    if "too small" in str(exc):
-        # libzstd's words for output that would pass the declared size.
-        return f"decompresses to more than the {size} bytes it declares"
-    return f"does not decompress (zstd: {exc})"
-
-
-def _mb(n: int) -> str:
-    return f"{n / _MB:g} MB"
 
 
 def _chunk_key(ci: ChunkIndex) -> tuple[int, int]:
