@@ -58,10 +58,9 @@ from slamcli.formats.mcap.records import (
     ChannelInfo,
     ImageRecord,
     PoseRecord,
-    TransformRecord,
     TwistRecord,
 )
-from slamcli.formats.mcap.tf import TfBuffer
+from slamcli.formats.mcap.tf import moving_frame_poses
 from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.text import format_stamp
 from slamcli.geometry import interpolate_planar, interpolate_poses, se3_to_planar
@@ -586,40 +585,9 @@ class McapSource(SourceBase):
         return _trajectory(stamps, poses, f"{self.path}: ground-truth topic {topic}")
 
     def _tf_groundtruth(self, frame: str) -> Trajectory | None:
-        buffer = TfBuffer()
-        moving: dict[str, list[int]] = {}
-        for _, rec in self._records(self._topics_of(TF_SCHEMAS)):
-            if isinstance(rec, TransformRecord):
-                buffer.add(rec)
-                if not rec.static:
-                    for p in rec.transforms:
-                        moving.setdefault(p.child_frame_id.lstrip("/"), []).append(p.stamp_ns)
-        parents = buffer.frames()
-        frame = frame.lstrip("/")
-        if frame not in parents:
-            raise InputError(
-                f"{self.path}: tf has no frame {frame!r} (--gt-frame)",
-                hint=f"frames in tf: {', '.join(sorted(parents)) or 'none'}",
-            )
-        # Sample at the stamps of the moving transform nearest the frame (a sensor frame is
-        # usually fixed to a base link that odometry moves).
-        node, stamps = frame, None
-        while True:
-            if node in moving:
-                stamps = moving[node]
-                break
-            parent = parents.get(node)
-            if not parent:
-                break
-            node = parent
-        root = node
-        while parents.get(root):
-            root = str(parents[root])
-        if stamps is None:
-            raise InputError(f"{self.path}: nothing in tf moves frame {frame!r}; no ground truth")
-        query = np.unique(np.asarray(stamps, dtype=np.int64))
-        valid, poses = buffer.lookup_many(root, frame, query)
-        return _trajectory(list(query[valid]), list(poses[valid]), f"{self.path}: tf {frame}")
+        records = (rec for _, rec in self._records(self._topics_of(TF_SCHEMAS)))
+        stamps, poses = moving_frame_poses(records, frame, self.path)
+        return _trajectory(list(stamps), list(poses), f"{self.path}: tf {frame}")
 
     # -- info ------------------------------------------------------------------------------------
 

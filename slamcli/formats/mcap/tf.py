@@ -13,7 +13,10 @@ Frame ids are compared without a leading ``/`` (ROS 1 wrote ``/odom`` where ROS 
 from __future__ import annotations
 
 import logging
+from collections.abc import Iterable
 from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -270,6 +273,54 @@ class TfBuffer:
         common_from_target = to_common(up_target)
         poses = compose(inverse(common_from_target), common_from_source)
         return valid, np.ascontiguousarray(poses), bad_edge
+
+
+def moving_frame_poses(
+    records: Iterable[Any], frame: str, path: Path
+) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """The poses of ``frame`` in the root of its tree, from the transform records among
+    ``records``, at the stamps of the moving transform nearest the frame.
+
+    Returns:
+        (N,) int64 stamps (ns) and (N, 4, 4) float64 ``root_from_frame`` poses.
+
+    Raises:
+        InputError: tf has no such frame, or nothing in tf moves it (``path`` names the log).
+    """
+    buffer = TfBuffer()
+    moving: dict[str, list[int]] = {}
+    for rec in records:
+        if isinstance(rec, TransformRecord):
+            buffer.add(rec)
+            if not rec.static:
+                for p in rec.transforms:
+                    moving.setdefault(p.child_frame_id.lstrip("/"), []).append(p.stamp_ns)
+    parents = buffer.frames()
+    frame = frame.lstrip("/")
+    if frame not in parents:
+        raise InputError(
+            f"{path}: tf has no frame {frame!r} (--gt-frame)",
+            hint=f"frames in tf: {', '.join(sorted(parents)) or 'none'}",
+        )
+    # Sample at the stamps of the moving transform nearest the frame (a sensor frame is
+    # usually fixed to a base link that odometry moves).
+    node, stamps = frame, None
+    while True:
+        if node in moving:
+            stamps = moving[node]
+            break
+        parent = parents.get(node)
+        if not parent:
+            break
+        node = parent
+    root = node
+    while parents.get(root):
+        root = str(parents[root])
+    if stamps is None:
+        raise InputError(f"{path}: nothing in tf moves frame {frame!r}; no ground truth")
+    query = np.unique(np.asarray(stamps, dtype=np.int64))
+    valid, poses = buffer.lookup_many(root, frame, query)
+    return query[valid], poses[valid]
 
 
 def _frame(name: str) -> str:
