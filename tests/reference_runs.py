@@ -262,6 +262,27 @@ def out_argument(argv: Sequence[str | Path]) -> str | None:
     return None
 
 
+def shareable_example(args: Sequence[str], work: Path) -> bool:
+    """Whether a documented example (``args`` after ``slamcli``, run in the folder ``work``) can
+    be a shared run whose ``--out`` is copied into ``work``: it writes a new ``--out`` and reads
+    nothing of ``work`` (only the repository's and the shared data, through links or not)."""
+    out = out_argument(args)
+    if out is None or _exists(work / out):
+        return False
+    root = work.resolve()
+    for token in args:
+        if token == out:
+            continue
+        for part in {token, token.split("=", 1)[-1]}:
+            path = work / part
+            if _exists(path):
+                if root in path.resolve().parents:
+                    return False
+            elif "/" in part:
+                return False  # a path to be written, or one that is not there
+    return True
+
+
 def _key(arguments: tuple[str, ...], suffix: str) -> str:
     words = [t for t in arguments if not t.startswith("-") and "/" not in t][:3]
     slug = re.sub(r"[^A-Za-z0-9]+", "-", "-".join(words)).strip("-")[:40] or "run"

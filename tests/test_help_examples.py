@@ -23,7 +23,7 @@ from typing import Any
 import pytest
 import typer
 from conftest import SHARED_DATA, shared_path
-from reference_runs import copy_out, out_argument
+from reference_runs import copy_out, out_argument, shareable_example
 from typer.testing import CliRunner
 
 from slamcli.cli.app import app
@@ -113,27 +113,6 @@ def work(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> Path:
     return cwd
 
 
-def _shared_with_other_tests(args: list[str], work: Path) -> bool:
-    """Whether an example is a command that other tests run too, and so runs once per session
-    (``shared_run``) and is copied here: it writes a new ``--out`` and reads nothing of the
-    work folder (only the repository's and the shared data)."""
-    out = out_argument(args)
-    if out is None or (work / out).exists():
-        return False
-    root = work.resolve()
-    for token in args:
-        if token == out:
-            continue
-        for part in {token, token.split("=", 1)[-1]}:
-            path = work / part
-            if path.exists():
-                if root in path.resolve().parents:
-                    return False
-            elif "/" in part:
-                return False  # a path to be written, or one that is not there
-    return True
-
-
 @pytest.mark.slow
 def test_every_example_runs(work: Path, shared_run: Any) -> None:
     found = examples_by_command()
@@ -146,7 +125,7 @@ def test_every_example_runs(work: Path, shared_run: Any) -> None:
         if ">" in args:
             at = args.index(">")
             args, target = args[:at], args[at + 1]
-        if target is None and _shared_with_other_tests(args, work):
+        if target is None and shareable_example(args, work):
             out = out_argument(args)
             assert out is not None
             run = shared_run(*args, cwd=work, suffix=Path(out).suffix)
