@@ -268,5 +268,8 @@ class SlamResult:
     pose_graph: tuple[NDArray[np.float64], list[Any]] | None = None
     """The final pose graph, for other tools: (N, 4, 4) world_from_node poses and
     :class:`slamcli.graphs.pose_graph.Edge` edges between their indices (written as graph.g2o)."""
+    robots: dict[int, Trajectory] = field(default_factory=dict)
+    """Each robot's trajectory, by robot id, when the run had several robots (one world frame;
+    ``trajectory`` is the first robot's)."""
     metrics: dict[str, Any] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)

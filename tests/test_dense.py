@@ -194,12 +194,12 @@ def test_config_is_checked() -> None:
 
 
 def test_volume_starts_at_the_first_frame_and_grows_with_the_scene() -> None:
-    from slamcli.pipelines.dense import _open3d, _Volume
+    from slamcli.pipelines.dense.volume import Volume, open3d
     from slamcli.types import PinholeCamera
 
     cam = PinholeCamera(320, 240, 256.0, 256.0, 159.5, 119.5)
     cfg = DenseConfig()
-    volume = _Volume(_open3d(), cfg, cam, cfg.block_count)
+    volume = Volume(open3d(), cfg, cam, cfg.block_count)
     wall = np.full((240, 320), 1.5, dtype=np.float32)
     rgb = np.full((240, 320, 3), 128, dtype=np.uint8)
     volume.integrate(wall, rgb, np.eye(4))
@@ -238,7 +238,7 @@ def test_only_keyframes_keep_images_packed_and_a_rebuild_fuses_them(synth_loop: 
         frames = list(source.frames(("rgbd",)))
     for frame in frames:
         pipe.process(frame)
-    kfs = pipe._keyframes
+    kfs = pipe.model.keyframes
     assert len(kfs) >= 5
     assert all(k.packed is not None and k.frame.rgb.size == 0 for k in kfs[:-1])
     assert kfs[-1].packed is None and kfs[-1].frame.rgb.size > 0
@@ -247,7 +247,7 @@ def test_only_keyframes_keep_images_packed_and_a_rebuild_fuses_them(synth_loop: 
     raw = sum(f.rgb.nbytes + f.depth_m.nbytes for f in frames[: len(kfs) - 1])
     assert packed < 0.5 * raw
     # The depth comes back as it was, to the 1/5000 m step it was stored in.
-    first = pipe._images(kfs[0])
+    first = pipe.rig.images(kfs[0])
     original = pipe._prepare(frames[kfs[0].frame.index])
     assert np.abs(first.depth - original.depth).max() <= 1.0 / 5000
     assert first.small is not None and first.rgb.shape == original.rgb.shape

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from slamcli.errors import ConfigError
-from slamcli.pipelines import PIPELINES, Evaluation, get_pipeline, get_spec
+from slamcli.pipelines import PIPELINES, Evaluation, Pipeline, PipelineBase, get_pipeline, get_spec
 
 
 @pytest.mark.parametrize("name", sorted(PIPELINES))
@@ -24,9 +24,17 @@ def test_declaration_matches_the_class(name: str) -> None:
     assert spec.example.startswith(f"slamcli run {name} ")
     assert "trajectory.tum" in spec.produces
     assert spec.example in spec.doc
-    if spec.evaluation == "se2":
-        # run_pipeline hands planar pipelines the source's start pose.
-        assert callable(cls.set_start)
+    # Every capability run_pipeline uses is declared by the protocol and given by the class:
+    # nothing is probed for at run time.
+    assert issubclass(cls, PipelineBase)
+    members = {m for m in dir(Pipeline) if not m.startswith("_")} | set(
+        typing.get_type_hints(Pipeline)
+    )
+    pipe = cls()
+    missing = [m for m in sorted(members) if not hasattr(pipe, m)]
+    assert not missing, missing
+    assert pipe.evaluation == spec.evaluation
+    pipe.close()
 
 
 def test_unknown_pipeline_names_the_known_ones() -> None:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import queue
 import threading
-from collections.abc import Collection, Iterable, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from types import TracebackType
@@ -96,10 +97,16 @@ class Source(Protocol):
         """The surveyed landmark positions, for scoring a landmark map."""
         ...
 
+    def groundtruths(self) -> dict[int, Trajectory]:
+        """Each robot's ground truth, by robot id, for a log of several robots (else
+        empty)."""
+        ...
+
 
 _C = TypeVar("_C", bound="Closing")
 _S = TypeVar("_S", bound="SourceBase")
 _T = TypeVar("_T")
+_R = TypeVar("_R")
 
 
 class Closing:
@@ -139,6 +146,10 @@ class SourceBase(Closing):
     def landmark_truth(self) -> LandmarkMap | None:
         """The surveyed landmark positions; None for logs without landmarks."""
         return None
+
+    def groundtruths(self) -> dict[int, Trajectory]:
+        """Each robot's ground truth by robot id; empty for logs of one robot."""
+        return {}
 
 
 class ReadAhead(Generic[_T]):
@@ -200,3 +211,56 @@ class ReadAhead(Generic[_T]):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+class _Done(Generic[_R]):
+    """A result computed in place, with the interface of a future."""
+
+    def __init__(self, value: _R) -> None:
+        self._value = value
+
+    def result(self) -> _R:
+        return self._value
+
+
+class Prefetch(Generic[_T, _R]):
+    """``prepare`` applied to each item one item ahead of its use, on a worker thread.
+
+    A pipeline whose per-frame preparation (decoding, ORB features) is a pure function of the
+    frame gets it done on a second core while the previous frame is worked on: :meth:`push`
+    takes a frame and returns the frames whose turn has come, in order, each with its pending
+    result (``.result()`` waits for it); :meth:`drain` returns the rest at the end. With
+    ``ahead=False`` each item is prepared in place and returned at once. Results do not depend
+    on the choice.
+    """
+
+    def __init__(self, prepare: Callable[[_T], _R], ahead: bool, name: str = "prefetch") -> None:
+        self._prepare = prepare
+        self._ahead = ahead
+        self._name = name
+        self._pool: ThreadPoolExecutor | None = None
+        self._queue: list[tuple[_T, Future[_R]]] = []
+
+    def push(self, item: _T) -> list[tuple[_T, Future[_R] | _Done[_R]]]:
+        """Take ``item``; the items ready to be worked on now, with their results."""
+        if not self._ahead:
+            return [(item, _Done(self._prepare(item)))]
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=self._name)
+        self._queue.append((item, self._pool.submit(self._prepare, item)))
+        if len(self._queue) > 1:
+            return [self._queue.pop(0)]
+        return []
+
+    def drain(self) -> list[tuple[_T, Future[_R] | _Done[_R]]]:
+        """The items still waiting, in order, with their results; the worker thread stops
+        once they are prepared."""
+        waiting: list[tuple[_T, Future[_R] | _Done[_R]]] = list(self._queue)
+        self._queue = []
+        return waiting
+
+    def close(self) -> None:
+        """Stop the worker thread (after the items in hand are prepared)."""
+        if self._pool is not None:
+            self._pool.shutdown()
+            self._pool = None

@@ -229,3 +229,35 @@ def decode_image(
     if problem:
         return None, problem
     return img, ""
+
+
+DEPTH_STEPS_PER_M = 5000.0
+"""Depth packed by :func:`pack_rgbd` is kept in steps of 1/5000 m (TUM's depth unit)."""
+
+
+def pack_rgbd(rgb: NDArray[np.uint8], depth_m: NDArray[np.float32]) -> tuple[bytes, bytes] | None:
+    """An RGB-D frame kept small in memory: the depth (H, W) metres as a lossless 16-bit PNG
+    in steps of 1/5000 m, the colour (H, W, 3) RGB as a JPEG of quality 95; about 0.3 MB at
+    640x480. None when OpenCV cannot encode the images. :func:`unpack_rgbd` reverses it."""
+    import cv2
+
+    steps = np.rint(depth_m * DEPTH_STEPS_PER_M).astype(np.uint16)
+    ok_d, depth_png = cv2.imencode(".png", steps)
+    bgr = cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)
+    ok_c, colour_jpg = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, 95])
+    if not (ok_d and ok_c):
+        return None
+    return depth_png.tobytes(), colour_jpg.tobytes()
+
+
+def unpack_rgbd(packed: tuple[bytes, bytes]) -> tuple[NDArray[np.uint8], NDArray[np.float32]]:
+    """The colour (H, W, 3) uint8 RGB and depth (H, W) float32 metres of a
+    :func:`pack_rgbd` frame."""
+    import cv2
+
+    depth_png, colour_jpg = packed
+    steps = np.asarray(cv2.imdecode(np.frombuffer(depth_png, np.uint8), cv2.IMREAD_UNCHANGED))
+    depth = steps.astype(np.float32) / np.float32(DEPTH_STEPS_PER_M)
+    bgr = np.asarray(cv2.imdecode(np.frombuffer(colour_jpg, np.uint8), cv2.IMREAD_COLOR))
+    rgb = np.ascontiguousarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), dtype=np.uint8)
+    return rgb, depth

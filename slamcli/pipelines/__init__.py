@@ -9,9 +9,93 @@ without importing the modules, which pull in numpy, OpenCV and Open3D.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, Protocol
+
+if TYPE_CHECKING:
+    import numpy as np
+    from numpy.typing import NDArray
+
+    from slamcli.formats.base import SourceInfo
+    from slamcli.types import SlamResult
 
 Evaluation = Literal["se2", "se3", "sim3"]
+
+
+class Pipeline(Protocol):
+    """What :func:`slamcli.run.run_pipeline` asks of a pipeline: every capability it may use.
+
+    A pipeline takes its frames through :meth:`process` and gives its result from
+    :meth:`finish`; it never prints or touches files. :class:`PipelineBase` gives the
+    optional parts their defaults.
+
+    Attributes:
+        name: the pipeline's name (its :data:`PIPELINES` key).
+        config: the frozen settings dataclass it runs with.
+        read_ahead: how many frames a reader thread may decode ahead of it (0: none).
+    """
+
+    name: str
+    config: Any
+    read_ahead: int
+
+    @property
+    def evaluation(self) -> Evaluation:
+        """How its trajectory is scored (see :class:`PipelineSpec`); may be settled by
+        :meth:`frame_kinds` (the visual pipeline is ``sim3`` on colour-only input)."""
+        ...
+
+    def frame_kinds(self, info: SourceInfo) -> tuple[str, ...]:
+        """The frame kinds to read from a source described by ``info``."""
+        ...
+
+    def set_start(self, pose: NDArray[np.float64] | None) -> None:
+        """The log's ground-truth start pose (x, y, yaw), or None; planar pipelines start
+        there."""
+        ...
+
+    def process(self, frame: Any) -> None:
+        """Take the next frame."""
+        ...
+
+    def finish(self) -> SlamResult:
+        """The result, once every frame is in; several robots' trajectories are in its
+        ``robots``."""
+        ...
+
+    def seeds(self) -> dict[str, int]:
+        """The seeds of its random choices, by generator, for run.json."""
+        ...
+
+    def close(self) -> None:
+        """Release threads and processes after an error (:meth:`finish` releases them
+        itself)."""
+        ...
+
+
+class PipelineBase:
+    """Defaults of the optional parts of :class:`Pipeline`: the frames it ``consumes``,
+    the evaluation its :data:`PIPELINES` entry declares, no read-ahead, no start pose, no
+    seeds, nothing to close."""
+
+    name: str = ""
+    consumes: tuple[str, ...] = ()
+    read_ahead: int = 0
+
+    @property
+    def evaluation(self) -> Evaluation:
+        return PIPELINES[self.name].evaluation
+
+    def frame_kinds(self, info: SourceInfo) -> tuple[str, ...]:
+        return self.consumes
+
+    def set_start(self, pose: NDArray[np.float64] | None) -> None:
+        return None
+
+    def seeds(self) -> dict[str, int]:
+        return {}
+
+    def close(self) -> None:
+        return None
 
 
 @dataclass(frozen=True)
@@ -141,7 +225,8 @@ def get_spec(name: str) -> PipelineSpec:
 
 
 def get_pipeline(name: str) -> Any:
-    """The pipeline class registered under ``name`` (its module is imported now)."""
+    """The pipeline class registered under ``name`` (its module is imported now); its
+    instances satisfy :class:`Pipeline`."""
     import importlib
 
     module, _, cls = get_spec(name).target.partition(":")

@@ -18,6 +18,7 @@ from numpy.typing import NDArray
 
 from slamcli.config import setting
 from slamcli.geometry import compose, inverse, rotation_angle
+from slamcli.pipelines import PipelineBase
 from slamcli.types import RgbdFrame, SlamResult, Trajectory
 
 log = logging.getLogger(__name__)
@@ -50,7 +51,7 @@ class OdometryConfig:
     )
 
 
-class RgbdOdometry:
+class RgbdOdometry(PipelineBase):
     """Pipeline ``odometry``: consumes ``rgbd`` frames, produces a trajectory."""
 
     name = "odometry"

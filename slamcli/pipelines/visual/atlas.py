@@ -1,4 +1,5 @@
-"""The sparse map of the visual pipeline: keyframes, map points and what links them.
+"""The atlas of the visual pipeline: every map of a run, the sparse map of keyframes and points
+they share, and the record of every tracked frame.
 
 Poses of keyframes are kept as ``cam_from_world`` (4, 4) matrices (what projection needs);
 points as world positions. A point records which keyframes observe it and at which keypoint
@@ -8,7 +9,8 @@ keypoints is (``point_ids``, -1 for none); the two are always changed together, 
 keyframes share) is derived from them when asked.
 
 Several maps may exist at once (tracking lost and a new map started); each keyframe and point
-carries its ``map_id``, and merging two maps relabels one.
+carries its ``map_id``, and :meth:`Atlas.merge` brings one map into another's frame and
+relabels it.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.geometry import inverse
 from slamcli.vision.matching import hamming
 
 F64 = NDArray[np.float64]
@@ -303,3 +306,125 @@ class SparseMap:
         for rel in reversed(chain):
             pose = rel @ pose
         return pose
+
+    def essential_links(
+        self, kfs: list[Keyframe], extra: list[tuple[int, int, str]] | None = None
+    ) -> list[tuple[int, int, str]]:
+        """The essential graph's edges among ``kfs``, as (lower id, higher id, kind): the
+        spanning tree, strong covisibility (100 shared points), loops, then ``extra``; each
+        pair once, in a fixed order."""
+        ids = {k.id for k in kfs}
+        links: list[tuple[int, int, str]] = []
+        seen: set[tuple[int, int]] = set()
+
+        def add(a: int, b: int, kind: str) -> None:
+            key = (min(a, b), max(a, b))
+            if a in ids and b in ids and a != b and key not in seen:
+                seen.add(key)
+                links.append((*key, kind))
+
+        for k in kfs:
+            if k.parent is not None:
+                add(k.parent, k.id, "tree")
+            for nb, _w in self.covisible(k, min_weight=100):
+                add(k.id, nb, "covisibility")
+            for other in sorted(k.loop_edges):
+                add(k.id, other, "loop")
+        for a, b, kind in extra or []:
+            add(a, b, kind)
+        return links
+
+
+@dataclass
+class FrameRecord:
+    """What the trajectory needs of a tracked frame: its pose relative to its reference
+    keyframe, and the points it matched (for the final re-estimation). One is kept per frame
+    for the whole run, so the matches are kept in 32 bits (20 bytes a point, not 40)."""
+
+    stamp_ns: int
+    kf: int
+    cam_from_kf: F64
+    kp: NDArray[np.float32]
+    sigma: NDArray[np.float32]
+    depth: NDArray[np.float32]
+    pids: NDArray[np.int32]
+    state: str
+
+
+@dataclass
+class MapRecord:
+    """One map of the run: its id, the frame that started it, and the map it was merged into
+    (None while it stands on its own)."""
+
+    id: int
+    first_frame: int
+    merged_into: int | None = None
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"id": self.id, "first_frame": self.first_frame, "merged_into": self.merged_into}
+
+
+class Atlas:
+    """Every map of one run: the sparse map they share, the map being tracked (``current``),
+    a record per map and per merge, and the record of every tracked frame (``frames``), each
+    hung from a keyframe."""
+
+    def __init__(self, scale: float, levels: int) -> None:
+        self.map = SparseMap(scale, levels)
+        self.current = 0
+        self.maps: list[MapRecord] = []
+        self.merges: list[dict[str, Any]] = []
+        self.frames: list[FrameRecord] = []
+
+    def open_map(self, first_frame: int) -> None:
+        """The current map got its first keyframes, made from frame ``first_frame``."""
+        self.maps.append(MapRecord(self.current, first_frame))
+
+    def start_new_map(self) -> None:
+        """Frames from now on start a map of their own (tracking was lost)."""
+        self.current += 1
+
+    def main_map(self) -> int | None:
+        """The map of the first live keyframe (every map merged into it), or None."""
+        kfs = self.map.live()
+        if not kfs:
+            return None
+        return kfs[0].map_id
+
+    def merge(self, keep: int, gone: int, keep_from_gone: F64, keyframes: tuple[int, int]) -> None:
+        """Bring map ``gone`` into map ``keep``'s frame by the similarity ``keep_from_gone``
+        (4, 4; a rigid transform times a scale for monocular maps) and relabel it; the frames
+        hanging from its keyframes take its new scale. ``keyframes`` are the two keyframes
+        whose recognised place joined the maps, for the record."""
+        smap, w = self.map, keep_from_gone
+        s = float(np.cbrt(np.linalg.det(w[:3, :3])))
+        moved_kfs = {k.id for k in smap.keyframes if k.map_id == gone}
+        for k in smap.keyframes:
+            if k.map_id == gone:
+                moved = w @ inverse(k.cam_from_world)
+                moved[:3, :3] /= s
+                k.cam_from_world = inverse(moved)
+                k.map_id = keep
+        ids = np.flatnonzero(smap.map_id[: smap.n] == gone)
+        smap.pos[ids] = smap.pos[ids] @ w[:3, :3].T + w[:3, 3]
+        smap.map_id[ids] = keep
+        if s != 1.0:
+            # Frames hang from their keyframe in its units, which the similarity rescales.
+            for rec in self.frames:
+                if rec.kf in moved_kfs:
+                    rec.cam_from_kf[:3, 3] *= s
+        for m in self.maps:
+            if m.id == gone:
+                m.merged_into = keep
+        if self.current == gone:
+            self.current = keep
+        self.merges.append(
+            {"maps": [keep, gone], "keyframes": list(keyframes), "scale": round(s, 5)}
+        )
+
+    def rescale_frames(self, scales: dict[int, float]) -> None:
+        """Frames hang from their keyframe in its units: those of the keyframes in ``scales``
+        (keyframe id -> factor) change by that factor."""
+        for rec in self.frames:
+            if rec.kf in scales:
+                rec.cam_from_kf[:3, 3] *= scales[rec.kf]

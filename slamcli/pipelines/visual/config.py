@@ -1,0 +1,104 @@
+"""Settings of the visual pipeline."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from slamcli.config import setting
+from slamcli.errors import ConfigError
+
+
+@dataclass(frozen=True)
+class VisualConfig:
+    """Settings of :class:`VisualSlam`. Lengths in metres, angles in degrees."""
+
+    mode: str = setting(
+        "auto",
+        help="rgbd uses depth, mono colour only (a map without metric scale, scored after "
+        "Sim(3) alignment); auto picks rgbd when the input has depth",
+        choices=("auto", "rgbd", "mono"),
+    )
+    max_features: int = setting(1000, help="ORB features per frame", min=100, max=20000)
+    levels: int = setting(8, help="ORB pyramid levels", min=1, max=12)
+    scale_factor: float = setting(1.2, help="ORB pyramid scale between levels", gt=1.0, max=2.0)
+    fast_threshold: int = setting(
+        12, help="FAST corner threshold; corners are ranked and spread afterwards", min=1, max=100
+    )
+    depth_min_m: float = setting(
+        0.1, help="depth readings nearer than this are ignored", unit="m", min=0.0
+    )
+    depth_max_m: float = setting(
+        4.0, help="depth readings further than this are ignored", unit="m", gt=0.0
+    )
+    depth_baseline_m: float = setting(
+        0.16,
+        help="RGB-D: a keypoint's depth is weighed as the disparity of a stereo pair with this "
+        "baseline (ORB-SLAM uses 0.08 for a Kinect); larger trusts depth more",
+        unit="m",
+        gt=0.0,
+        max=1.0,
+    )
+    keyframe_track_ratio: float = setting(
+        0.75,
+        help="a keyframe is made when a frame tracks fewer than this share of its reference "
+        "keyframe's points (monocular: at least 0.9)",
+        gt=0.0,
+        max=1.0,
+    )
+    keyframe_max_frames: int = setting(
+        10, help="a keyframe is made at least this often (frames)", min=1
+    )
+    local_window: int = setting(
+        10, help="covisible keyframes optimised by local bundle adjustment", min=1, max=100
+    )
+    ba_iterations: int = setting(10, help="iterations of each local bundle adjustment", min=1)
+    min_tracked: int = setting(
+        30, help="least map points a tracked frame must match after the local-map search", min=6
+    )
+    pnp_threshold_px: float = setting(
+        4.0, help="RANSAC inlier threshold of PnP (relocalisation, loops)", unit="px", gt=0.0
+    )
+    loop_closure: bool = setting(True, help="detect and close loops")
+    vocabulary: str = setting(
+        "default",
+        help="bag-of-words vocabulary for loop closure and relocalisation: 'default' (shipped "
+        "with slamcli, see slamcli/data/VOCABULARY.md) or a file made by 'slamcli vocab train'",
+    )
+    loop_consistency: int = setting(
+        3,
+        help="consecutive keyframes a loop candidate must be recognised from before it is verified",
+        min=1,
+    )
+    loop_min_inliers: int = setting(
+        40, help="least matched points of a verified loop after the guided search", min=10
+    )
+    global_ba: bool = setting(
+        True, help="global bundle adjustment after a loop closure and at the end"
+    )
+    final_pose_refinement: bool = setting(
+        True,
+        help="re-estimate every frame's pose against the final map (else frames keep the "
+        "pose tracked online, moved with their keyframe)",
+    )
+    new_map_after_lost: int = setting(3, help="lost frames after which a new map is started", min=1)
+    mono_min_parallax_deg: float = setting(
+        1.0, help="monocular initialisation: least median parallax", unit="deg", gt=0.0
+    )
+    mono_min_points: int = setting(
+        50, help="monocular initialisation: least triangulated points", min=8
+    )
+    threads: int = setting(
+        2,
+        help="1 does everything on one core; 2 decodes and extracts features of the next "
+        "frames, and runs local bundle adjustment, beside tracking (same results either way)",
+        choices=(1, 2),
+    )
+    seed: int = setting(0, help="seeds every RANSAC", min=0, max=2**31 - 1)
+
+    def __post_init__(self) -> None:
+        if self.depth_min_m >= self.depth_max_m:
+            raise ConfigError(
+                f"visual.depth_min_m: expected less than visual.depth_max_m "
+                f"({self.depth_max_m}), got {self.depth_min_m!r}",
+                hint="set visual.depth_min_m below visual.depth_max_m",
+            )

@@ -1,0 +1,348 @@
+"""Feature-based visual SLAM (ORB-SLAM-like), RGB-D or monocular, offline and deterministic.
+
+Per frame (:meth:`VisualSlam.process`), in the order of ORB-SLAM's threads of work:
+
+- **Features** (:mod:`.frames`): ORB spread over the image and 8 pyramid levels; keypoints,
+  not images, are undistorted. With ``threads = 2`` the next frame's features are extracted on
+  the second core while the current one is tracked (the extraction is a pure function of the
+  image, so the order of results never changes).
+- **Tracking** (:mod:`.tracking`): motion model, reference keyframe or relocalisation, then the
+  local map; a monocular map is first initialised from two views (:mod:`.initializer`).
+- **Local mapping** (:mod:`.local_mapping`, :mod:`.bundle`) on each keyframe: new points,
+  fusion, culling, local bundle adjustment.
+- **Loop closing** (:mod:`.loop_closing`, :mod:`.places`): place recognition, verified loops
+  close through the essential graph and a global bundle adjustment; a place recognised in
+  another map merges the two maps (:mod:`.atlas`).
+- **Lost tracking** never aborts the run: a lost frame is relocalised; when that fails for
+  ``new_map_after_lost`` frames a new map is started, and merged when a place is recognised.
+
+:meth:`VisualSlam.finish` runs a last global bundle adjustment and re-estimates every frame's
+pose against the final map (an offline tool can afford it), then returns the trajectory of
+every frame in the main map (the one of the first keyframe, with all maps merged into it), the
+keyframes, the coloured points, the pose graph, and counts of frames by tracking state, maps,
+merges and loop closures with their scores and reasons.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.errors import ConfigError, PipelineError
+from slamcli.formats.base import Prefetch, SourceInfo
+from slamcli.geometry import inverse
+from slamcli.pipelines import Evaluation, PipelineBase
+from slamcli.pipelines.timing import Stats
+from slamcli.pipelines.visual.atlas import Atlas
+from slamcli.pipelines.visual.bundle import BundleAdjuster
+from slamcli.pipelines.visual.config import VisualConfig
+from slamcli.pipelines.visual.frames import Frame, Rig, refine_poses
+from slamcli.pipelines.visual.initializer import MonoInitializer
+from slamcli.pipelines.visual.local_mapping import LocalMapping
+from slamcli.pipelines.visual.loop_closing import LoopClosing, essential_graph
+from slamcli.pipelines.visual.places import Places
+from slamcli.pipelines.visual.tracking import Tracking
+from slamcli.types import ImageFrame, RgbdFrame, SlamResult, Trajectory
+from slamcli.vision.features import Features
+from slamcli.worker import SideProcess
+
+F64 = NDArray[np.float64]
+
+_STATES = ("tracked", "relocalised", "lost", "initialising", "new_map")
+
+
+class VisualSlam(PipelineBase):
+    """Pipeline ``visual``: consumes ``rgbd`` (or ``image``, monocular) frames; produces
+    poses, keyframes, coloured points and a pose graph."""
+
+    name = "visual"
+    consumes: tuple[str, ...] = ("rgbd",)
+    config_class = VisualConfig
+
+    def __init__(self, config: VisualConfig | None = None) -> None:
+        self.config = cfg = config or VisualConfig()
+        # With two threads, frames are decoded ahead on a reader thread (see run_pipeline).
+        self.read_ahead = 2 if cfg.threads == 2 else 0
+        self.rig = Rig(cfg)
+        self.atlas = Atlas(cfg.scale_factor, cfg.levels)
+        self.stats = Stats()
+        # Local bundle adjustments and the final refinement of the frames' poses run on this
+        # second process with threads=2, at points fixed by the frame sequence.
+        self._side = SideProcess(parallel=cfg.threads == 2)
+        self.places = Places(cfg.vocabulary, self.atlas.map)
+        self.ba = BundleAdjuster(cfg, self.rig, self.atlas.map, self.stats, self._side)
+        self.mapper = LocalMapping(cfg, self.rig, self.atlas, self.places, self.ba, self.stats)
+        self.initializer = MonoInitializer(cfg, self.rig, self.atlas, self.mapper, self.stats)
+        self.tracker = Tracking(cfg, self.rig, self.atlas, self.places, self.stats)
+        self.loops = LoopClosing(
+            cfg, self.rig, self.atlas, self.places, self.mapper, self.ba, self.stats
+        )
+        self._features = Prefetch(self.rig.extract, ahead=cfg.threads == 2, name="orb")
+        self._frames = 0
+        self._textureless = 0
+
+    # -- the pipeline -------------------------------------------------------------------------
+
+    @property
+    def evaluation(self) -> Evaluation:
+        """``sim3`` for a monocular run (a map without metric scale), else ``se3``."""
+        return self.rig.evaluation
+
+    def seeds(self) -> dict[str, int]:
+        """Seeds of the random choices: COLMAP's RANSAC (PnP) and OpenCV's (two-view geometry)
+        both get ``config.seed``."""
+        return {"ransac": self.config.seed, "opencv": self.config.seed}
+
+    def frame_kinds(self, info: SourceInfo) -> tuple[str, ...]:
+        """The frames to read from a source described by ``info``: RGB-D when it has depth and
+        the mode allows, colour images otherwise.
+
+        Raises:
+            ConfigError: ``mode=rgbd`` for an input without depth.
+        """
+        # A depth stream (TUM) or a depth topic paired with the colour one (MCAP).
+        has_depth = any(s.kind == "depth" and s.count > 0 for s in info.streams) or bool(
+            info.details.get("depth_topic") and info.frames > 0
+        )
+        mode = self.config.mode
+        if mode == "rgbd" and not has_depth:
+            raise ConfigError(
+                f"visual.mode=rgbd, but {info.path} has no depth stream",
+                hint="use --set mode=mono (or mode=auto) for colour-only input",
+            )
+        self.rig.mono = mode == "mono" or (mode == "auto" and not has_depth)
+        return ("image",) if self.rig.mono else ("rgbd",)
+
+    def process(self, frame: RgbdFrame | ImageFrame) -> None:
+        """Queue a frame; with two threads its features are extracted while the previous
+        frame is tracked."""
+        if self.config.threads == 2:
+            self._side.start()
+        for ready, features in self._features.push(frame):
+            self._track_frame(ready, features.result())
+
+    def finish(self) -> SlamResult:
+        """Track what is queued, adjust the final map, and return the result."""
+        for ready, features in self._features.drain():
+            self._track_frame(ready, features.result())
+        self._features.close()
+        self.ba.settle()
+        try:
+            if self._frames == 0:
+                raise PipelineError("the visual pipeline received no frames")
+            start = time.perf_counter()
+            main = self.atlas.main_map()
+            if main is None:
+                self._no_map_error()
+            if self.config.global_ba:
+                with self.stats.timed("global_ba"):
+                    self.ba.global_ba(main)
+            with self.stats.timed("final_poses"):
+                trajectory = self._trajectory(main)
+        finally:
+            self._side.close()
+        self.stats.ms["total"] += (time.perf_counter() - start) * 1e3
+        return self._result(main, trajectory)
+
+    # -- as another pipeline's front end ------------------------------------------------------
+
+    def extract(self, frame: RgbdFrame | ImageFrame) -> Features:
+        """ORB features of ``frame`` for :meth:`track` (no state is changed: it may run on
+        another thread)."""
+        return self.rig.extract(frame)
+
+    def track(self, frame: RgbdFrame | ImageFrame, features: Features) -> tuple[F64, int] | None:
+        """Track ``frame`` now, without the queue of :meth:`process`: its world_from_camera
+        pose as tracked (in the frame of its map) and that map's id, or None while the map is
+        initialising or the frame is lost. :meth:`finish` still gives the final trajectory."""
+        if self.config.threads == 2:
+            self._side.start()
+        before = len(self.atlas.frames)
+        self._track_frame(frame, features)
+        if len(self.atlas.frames) == before:
+            return None
+        rec = self.atlas.frames[-1]
+        kf = self.atlas.map.keyframes[rec.kf]
+        return inverse(rec.cam_from_kf @ kf.cam_from_world), int(kf.map_id)
+
+    def close(self) -> None:
+        """Stop the side process and the feature thread (after an error; :meth:`finish` stops
+        them itself)."""
+        self._features.close()
+        self._side.close()
+
+    # -- frames ------------------------------------------------------------------------------
+
+    def _track_frame(self, frame: RgbdFrame | ImageFrame, features: Features) -> None:
+        start = time.perf_counter()
+        cur = self.rig.prepare(frame, features, self._frames)
+        self._frames += 1
+        if len(cur.features) < 20:
+            self._textureless += 1
+        state = self._track(cur)
+        self.stats.counts[f"frames_{state}"] += 1
+        self.stats.ms["total"] += (time.perf_counter() - start) * 1e3
+
+    def _track(self, cur: Frame) -> str:
+        """Pose ``cur``; returns its tracking state (tracked, relocalised, initialising,
+        new_map, lost)."""
+        if not self.tracker.has_map():
+            return self._start_map(cur)
+        state = self.tracker.locate(cur)
+        if state is None:
+            if self.tracker.lost_too_long():
+                self._start_new_map()
+            return "lost"
+        self.tracker.accept(cur, state)
+        if self.tracker.wants_keyframe(cur):
+            with self.stats.timed("mapping"):
+                self._keyframe(cur)
+        self.tracker.set_last(cur)
+        return state
+
+    def _start_map(self, cur: Frame) -> str:
+        """A map's first keyframes: from two views (monocular) or from ``cur``'s depth."""
+        counts = self.stats.counts
+        if self.rig.mono:
+            made = self.initializer.initialise(cur)
+            if made is None:
+                return "initialising"
+            ref, kf0, kf1 = made
+            self.places.index(kf0)
+            self.places.index(kf1)
+            self.tracker.begin([(ref, kf0), (cur, kf1)])
+            counts["keyframes_made"] += 2
+            counts["frames_tracked"] += 1  # the reference, counted as initialising before
+            counts["frames_initialising"] -= 1
+            return "tracked"
+        first = self.mapper.start_map(cur)
+        if first is None:
+            return "initialising"
+        self.places.index(first)
+        self.tracker.begin([(cur, first)])
+        counts["keyframes_made"] += 1
+        return "new_map" if len(self.atlas.maps) > 1 else "tracked"
+
+    def _keyframe(self, cur: Frame) -> None:
+        """Make a keyframe of the tracked frame ``cur``: local mapping, then loop closing."""
+        assert self.tracker.reference is not None
+        kf = self.mapper.insert_keyframe(cur, self.tracker.reference)
+        self.places.index(kf)
+        if self.config.loop_closure:
+            with self.stats.timed("loop"):
+                self.loops.detect(kf)
+        self.tracker.follow(cur, kf)
+        self.stats.counts["keyframes_made"] += 1
+
+    def _start_new_map(self) -> None:
+        """Tracking was lost for too long: the next frames start a map of their own."""
+        self.ba.settle()
+        self.atlas.start_new_map()
+        self.tracker.reset()
+        self.initializer.reset()
+        self.stats.counts["maps_started"] += 1
+
+    def _no_map_error(self) -> None:
+        """Raise the PipelineError that says why no map came out of the frames."""
+        if self._textureless >= self._frames * 0.9:
+            raise PipelineError(
+                f"no map could be made: {self._textureless} of {self._frames} frames had fewer "
+                "than 20 ORB features (images without texture?)",
+                hint="check the images; visual SLAM needs textured scenes",
+            )
+        if self.rig.mono:
+            raise PipelineError(
+                f"monocular initialisation never succeeded over {self._frames} frames (it needs "
+                f"{self.config.mono_min_points} points triangulated with at least "
+                f"{self.config.mono_min_parallax_deg} deg of parallax: the camera must translate)",
+                hint="give a sequence that moves sideways, or use RGB-D input",
+            )
+        raise PipelineError(
+            f"no map could be made from {self._frames} frames: none had 100 keypoints with depth "
+            f"between {self.config.depth_min_m} and {self.config.depth_max_m} m",
+            hint="check the depth stream and its depth scale, or widen visual.depth_max_m",
+        )
+
+    # -- results -----------------------------------------------------------------------------
+
+    def _trajectory(self, main: int | None) -> Trajectory:
+        """Every frame of the main map, placed by its keyframe and, with
+        ``final_pose_refinement``, re-estimated against the final map: with threads=2 the
+        second half of the frames on the side process (each frame on its own, so the split
+        changes nothing)."""
+        smap = self.atlas.map
+        stamps: list[int] = []
+        poses: list[F64] = []
+        jobs: list[tuple[F64, F64, F64, F64, F64]] = []
+        refined: list[int] = []
+        for rec in self.atlas.frames:
+            kf = smap.keyframes[rec.kf]
+            if kf.map_id != main:
+                self.stats.counts["frames_in_unmerged_maps"] += 1
+                continue
+            pose = rec.cam_from_kf @ smap.world_pose(kf.id)
+            if self.config.final_pose_refinement and len(rec.pids):
+                alive = smap.alive[rec.pids] & (smap.map_id[rec.pids] == main)
+                if np.count_nonzero(alive) >= 10:
+                    refined.append(len(poses))
+                    jobs.append(
+                        (
+                            pose,
+                            rec.kp[alive].astype(np.float64),
+                            smap.pos[rec.pids[alive]],
+                            rec.sigma[alive].astype(np.float64),
+                            rec.depth[alive].astype(np.float64),
+                        )
+                    )
+            stamps.append(rec.stamp_ns)
+            poses.append(pose)
+        if jobs:
+            settings = self.rig.refine_jobs()
+            half = len(jobs) // 2
+            later = self._side.submit(refine_poses, *settings, jobs[half:])
+            better = refine_poses(*settings, jobs[:half]) + later.result()
+            for i, new in zip(refined, better, strict=True):
+                if new is not None:
+                    poses[i] = new
+        return Trajectory(
+            np.array(stamps, np.int64), np.stack([inverse(p) for p in poses]).reshape(-1, 4, 4)
+        )
+
+    def _result(self, main: int | None, trajectory: Trajectory) -> SlamResult:
+        """The result of the run: ``trajectory``, the keyframes, points and essential graph of
+        map ``main``, the counts and the records of maps, merges and loop closures."""
+        smap = self.atlas.map
+        kfs = smap.live(main)
+        keyframes = Trajectory(
+            np.array([k.stamp_ns for k in kfs], np.int64),
+            np.stack([inverse(k.cam_from_world) for k in kfs]).reshape(-1, 4, 4),
+        )
+        alive = np.flatnonzero(smap.alive[: smap.n] & (smap.map_id[: smap.n] == main))
+        counts = dict(self.stats.counts)
+        for state in _STATES:
+            counts.setdefault(f"frames_{state}", 0)
+        counts["keyframes"] = len(kfs)
+        counts["map_points"] = int(alive.size)
+        counts["maps"] = len(self.atlas.maps)
+        counts["map_merges"] = len(self.atlas.merges)
+        counts["loop_closures_accepted"] = sum(1 for r in self.loops.records if r["accepted"])
+        counts["loop_closures_rejected"] = sum(1 for r in self.loops.records if not r["accepted"])
+        stages = self.stats.per_frame(self._frames)
+        return SlamResult(
+            trajectory=trajectory,
+            keyframes=keyframes,
+            pose_graph=(keyframes.world_from_body, essential_graph(smap, kfs)),
+            points=smap.pos[alive].copy(),
+            point_colors=smap.color[alive].copy(),
+            metrics={
+                "mode": "mono" if self.rig.mono else "rgbd",
+                "initialisation": self.initializer.info,
+                "ms_per_frame": stages,
+                "maps": [m.to_dict() for m in self.atlas.maps],
+                "merges": self.atlas.merges,
+                "loop_closures": self.loops.records,
+            },
+            counts=counts,
+        )
