@@ -1,5 +1,5 @@
 # make demo         - set everything up and run the demo on the bundled sample data
-# make test         - set everything up and run the test suite
+# make test         - set everything up and run the test suite (it prints the 15 slowest tests)
 # make constraints  - re-resolve the newest releases pyproject.toml allows into constraints.txt
 # make fuzz         - run FUZZ_CASES seeded damaged inputs through the commands (minutes)
 # make vocabulary   - retrain the shipped ORB vocabulary slamcli/data/orb_vocabulary.npz (~20 min)
@@ -17,7 +17,7 @@ demo: setup
 	$(VENV)/bin/slamcli demo --out runs/demo --force
 
 test: setup
-	$(PY) -m pytest -q -n 2 --dist loadfile
+	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
 setup: syslibs $(STAMP)
 
