@@ -16,7 +16,6 @@ import os
 import platform
 import re
 import shutil
-import signal
 import sys
 import tempfile
 import time
@@ -33,6 +32,7 @@ from slamcli.atomic import (
     write_json_atomic,
 )
 from slamcli.errors import ExportError, InputError
+from slamcli.interrupts import watched
 
 RUN_SCHEMA_VERSION = 1
 """Version of the run.json layout (documented in README.md, 'run.json')."""
@@ -186,7 +186,7 @@ class RunDir:
 
     def _make_staging(self) -> Path:
         # Ctrl-C waits until the new folder is on the list that exit-time cleanup empties.
-        with _interrupts_deferred():
+        with watched(deferred=True):
             try:
                 staging = Path(
                     tempfile.mkdtemp(
@@ -278,7 +278,7 @@ class RunDir:
             return self.path
         # Ctrl-C during the swap is held until the folder is in place and recorded as such,
         # so it can neither split the swap nor strand the set-aside old folder.
-        with _interrupts_deferred():
+        with watched(deferred=True):
             try:
                 aside = self._swap_in()
             except OSError as exc:
@@ -361,10 +361,11 @@ class RunDir:
         counts: dict[str, Any] | None = None,
         metrics: dict[str, Any] | None = None,
         extra: dict[str, Any] | None = None,
-    ) -> Path:
-        """Write run.json (schema in README.md); it lists every output written before it.
+    ) -> dict[str, Any]:
+        """Write run.json (schema in docs/run-folders.md); it lists every output written
+        before it.
 
-        Returns run.json's final path.
+        Returns what it holds.
         """
         from slamcli import __version__
 
@@ -385,7 +386,11 @@ class RunDir:
         }
         if extra:
             record.update(extra)
-        return self.write_json("run.json", record)
+        text = json.dumps(record, indent=2) + "\n"
+        self.write_text("run.json", text)
+        # As a reader of the file sees it (tuples as lists, keys as strings).
+        written: dict[str, Any] = json.loads(text)
+        return written
 
 
 _LIVE_STAGING: set[Path] = set()
@@ -399,31 +404,6 @@ def _remove_live_staging() -> None:
     for staging in list(_LIVE_STAGING):
         shutil.rmtree(staging, ignore_errors=True)
     _LIVE_STAGING.clear()
-
-
-@contextlib.contextmanager
-def _interrupts_deferred() -> Iterator[None]:
-    """Hold Ctrl-C until the block ends, then deliver it as the previous handler would.
-
-    A Python-level handler, not a signal mask: the kernel may hand SIGINT to any thread
-    (OpenBLAS and Open3D start their own), and only the Python handler is sure to see it.
-    Python runs signal handlers in the main thread only, so elsewhere the block runs as is.
-    """
-    import threading
-
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-    received: list[int] = []
-    previous = signal.signal(signal.SIGINT, lambda signum, _frame: received.append(signum))
-    try:
-        yield
-    finally:
-        signal.signal(signal.SIGINT, previous)
-        if received and callable(previous):
-            previous(signal.SIGINT, None)
-        elif received and previous == signal.SIG_DFL:
-            raise KeyboardInterrupt
 
 
 _STALE = re.compile(r"^\.(?P<name>.+)\.(?P<kind>staging|old)-(?P<pid>\d+)-[^/]*$")

@@ -220,10 +220,9 @@ def run_job(job: RunJob) -> JobResult:
             1,
             details=traceback.format_exc(),
         )
-    record = read_run_json(outcome.run_dir) or {}
     return result_from_run(
         job,
-        record,
+        outcome.record,
         time.perf_counter() - start,
         data_loss=outcome.data_loss,
         skipped=int(outcome.counts.get("frames_skipped", 0)),

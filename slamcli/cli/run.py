@@ -121,7 +121,7 @@ def _command(pipeline: str) -> Any:
         gates = _gates(pipeline, fail_if or [], baseline)
         outcome = _run(pipeline, input, out, force, max_frames, mcap, source, settings, map_)
         if gates:
-            _check_gates(gates, outcome.run_dir, baseline)
+            _check_gates(gates, outcome, baseline)
         exit_if_data_lost(outcome)
 
     command.__doc__ = PIPELINES[pipeline].doc
@@ -189,13 +189,13 @@ def _gates(pipeline: str, texts: list[str], baseline: Path | None) -> list[Any]:
     return gates
 
 
-def _check_gates(gates: list[Any], run_dir: Path, baseline: Path | None) -> None:
+def _check_gates(gates: list[Any], outcome: RunOutcome, baseline: Path | None) -> None:
     """Print every gate with its value; exit 3 when one holds."""
     from slamcli.batch.gates import evaluate_gates
     from slamcli.batch.job import read_run_json
 
-    record = read_run_json(run_dir) or {}
-    results = evaluate_gates(gates, record, read_run_json(baseline) if baseline else None)
+    run_dir = outcome.run_dir
+    results = evaluate_gates(gates, outcome.record, read_run_json(baseline) if baseline else None)
     render.table(
         "Gates",
         ["gate", "result"],

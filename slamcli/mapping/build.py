@@ -65,7 +65,14 @@ from slamcli.mapping.floor import (
     up_from_cameras,
 )
 from slamcli.mapping.occupancy import L_FREE, L_MAX, L_MIN, L_OCC, LogOddsGrid
-from slamcli.types import OccupancyGrid, PinholeCamera, ProgressFn, Trajectory
+from slamcli.types import (
+    LandmarkMap,
+    OccupancyGrid,
+    PinholeCamera,
+    ProgressFn,
+    SlamResult,
+    Trajectory,
+)
 
 log = logging.getLogger(__name__)
 
@@ -183,6 +190,97 @@ class _Scans:
         return lo, hi
 
 
+@dataclass(frozen=True)
+class MapInput:
+    """What a map is built from: a run's poses and products, and its input log to read again.
+
+    Attributes:
+        pipeline: the pipeline that made the run (a key of :data:`MAP_KINDS` to have a map).
+        trajectory: the run's poses.
+        input_path: the run's input log.
+        source_options: the options the run opened the log with.
+        run_path: the run folder, for the record.
+        poses_from: where the poses come from, for messages.
+        exact: a depth frame takes the pose stamped exactly as it is (the run's own poses);
+            else one within :attr:`MapSettings.pose_max_dt_s` of it (a trajectory file's,
+            whose stamps are rounded).
+        floor_points: (N, 3) points to look for the floor in, and what they are (None: the
+            depth frames' points).
+        landmarks: the mapped landmarks (landmark runs).
+        mono: a monocular run (a map without metric scale).
+    """
+
+    pipeline: str | None
+    trajectory: Trajectory
+    input_path: Path
+    source_options: dict[str, Any]
+    run_path: Path
+    poses_from: str
+    exact: bool = False
+    floor_points: tuple[F64, str] | None = None
+    landmarks: LandmarkMap | None = None
+    mono: bool = False
+
+    @classmethod
+    def from_run(cls, run_dir: str | Path, input_path: str | Path | None = None) -> MapInput:
+        """A run folder's trajectory.tum, points.ply (else mesh.ply), landmarks.csv and
+        run.json's input and source options.
+
+        Raises:
+            InputError: as :func:`build_map`.
+        """
+        run = read_run(run_dir)
+        trajectory = run.trajectory()
+        if len(trajectory) == 0:
+            raise InputError(f"{run.files['trajectory']}: holds no poses")
+        metrics = run.record.get("metrics")
+        mono = isinstance(metrics, dict) and metrics.get("mode") == "mono"
+        kind = _map_kind(run.pipeline, run.path, mono)
+        source_path = run.input_path(input_path)
+        return cls(
+            run.pipeline,
+            trajectory,
+            source_path,
+            run.source_options,
+            run.path,
+            str(run.files["trajectory"]),
+            floor_points=_floor_points(run) if kind == "depth" else None,
+            landmarks=run.landmarks() if kind == "landmarks" else None,
+            mono=mono,
+        )
+
+    @classmethod
+    def from_result(
+        cls,
+        pipeline: str,
+        result: SlamResult,
+        input_path: str | Path,
+        source_options: dict[str, Any],
+        run_path: Path,
+        mono: bool = False,
+    ) -> MapInput:
+        """A run's result as it is in memory (``slamcli run --map``): each depth frame takes
+        the pose the run gave that very frame."""
+        assert result.trajectory is not None
+        floor = None
+        if result.points is not None and len(result.points):
+            floor = (np.asarray(result.points, dtype=np.float64), "points.ply")
+        elif result.mesh is not None and len(result.mesh.vertices):
+            floor = (np.asarray(result.mesh.vertices, dtype=np.float64), "mesh.ply")
+        return cls(
+            pipeline,
+            result.trajectory,
+            Path(input_path),
+            dict(source_options),
+            run_path,
+            "the run's trajectory",
+            exact=True,
+            floor_points=floor,
+            landmarks=result.landmarks,
+            mono=mono,
+        )
+
+
 def build_map(
     run_dir: str | Path,
     *,
@@ -201,18 +299,25 @@ def build_map(
             run.json names no pipeline that has a map, the input moved, no frame has a pose, no
             floor was found. FormatError: a broken run.json. ConfigError: a bad setting.
     """
+    cfg = (settings or MapSettings()).checked()
+    return build(MapInput.from_run(run_dir, input_path), cfg, progress)
+
+
+def build(
+    given: MapInput, settings: MapSettings | None = None, progress: ProgressFn | None = None
+) -> BuiltMap:
+    """Build an occupancy grid from ``given`` (rules in the module docstring).
+
+    Raises:
+        InputError: no map for the run's pipeline, no frame has a pose, no floor was found.
+        ConfigError: a bad setting.
+    """
     t0 = time.perf_counter()
     cfg = (settings or MapSettings()).checked()
-    run = read_run(run_dir)
-    trajectory = run.trajectory()
-    if len(trajectory) == 0:
-        raise InputError(f"{run.files['trajectory']}: holds no poses")
-    kind = _map_kind(run)
-    source_path = run.input_path(input_path)
-    if kind == "landmarks":
-        built = _landmark_map(run, trajectory, source_path, cfg)
+    if _map_kind(given.pipeline, given.run_path, given.mono) == "landmarks":
+        built = _landmark_map(given, cfg)
     else:
-        built = _depth_map(run, trajectory, source_path, cfg, progress)
+        built = _depth_map(given, cfg, progress)
     report = built.report
     report["cells"] = cell_counts(built.grid)
     report["time_s"] = round(time.perf_counter() - t0, 3)
@@ -222,47 +327,56 @@ def build_map(
 # --- run folder ------------------------------------------------------------------------------
 
 
-def _map_kind(run: RunRecord) -> str:
+def _map_kind(pipeline: str | None, run_path: Path, mono: bool) -> str:
     """The kind of map (a value of :data:`MAP_KINDS`) for the pipeline the run declares."""
-    if run.pipeline is None:
+    if pipeline is None:
         raise InputError(
-            f"{run.path / 'run.json'}: does not say which pipeline made the run",
+            f"{run_path / 'run.json'}: does not say which pipeline made the run",
             hint="map build takes folders written by 'slamcli run PIPELINE' (run.json's "
             "'pipeline' or 'command')",
         )
-    if run.pipeline not in MAP_KINDS:
+    if pipeline not in MAP_KINDS:
         raise InputError(
-            f"{run.path}: a {run.pipeline} run; maps are built from runs of {', '.join(MAP_KINDS)}",
+            f"{run_path}: a {pipeline} run; maps are built from runs of {', '.join(MAP_KINDS)}",
         )
-    metrics = run.record.get("metrics")
-    if isinstance(metrics, dict) and metrics.get("mode") == "mono":
+    if mono:
         raise InputError(
-            f"{run.path}: a monocular visual run: its map has no metric scale, so it cannot be "
+            f"{run_path}: a monocular visual run: its map has no metric scale, so it cannot be "
             "laid on a metric occupancy grid",
             hint="build maps from RGB-D runs (slamcli run visual on an input with depth)",
         )
-    return MAP_KINDS[run.pipeline]
+    return MAP_KINDS[pipeline]
+
+
+def _floor_points(run: RunRecord) -> tuple[F64, str] | None:
+    """Points to look for the floor in: points.ply, else mesh.ply's vertices, else None."""
+    for kind in ("points", "mesh"):
+        path = run.files.get(kind)
+        if path is not None:
+            from slamcli.formats.mesh import read_points_ply
+
+            cloud, _ = read_points_ply(path)
+            if len(cloud):
+                return cloud, path.name
+    return None
 
 
 # --- dense runs ------------------------------------------------------------------------------
 
 
-def _depth_map(
-    run: RunRecord,
-    trajectory: Trajectory,
-    source_path: Path,
-    cfg: MapSettings,
-    progress: ProgressFn | None,
-) -> BuiltMap:
+def _depth_map(given: MapInput, cfg: MapSettings, progress: ProgressFn | None) -> BuiltMap:
     from slamcli.formats import open_source
     from slamcli.geometry import interpolate_poses
+
+    trajectory, source_path = given.trajectory, given.input_path
+    pose_at = _exact_poses(trajectory) if given.exact else None
 
     cams: list[F64] = []
     points: list[F32] = []
     accel_stamps: list[int] = []
     accel: list[F64] = []
     frames_read = without_pose = 0
-    with open_source(source_path, **run.source_options) as source:
+    with open_source(source_path, **given.source_options) as source:
         total = source.info().frames
         for frame in _depth_and_imu(source):
             if isinstance(frame, tuple):
@@ -274,7 +388,11 @@ def _depth_map(
                 progress(frames_read, max(total, frames_read))
             if (frames_read - 1) % cfg.frame_step:
                 continue
-            pose = _pose_at(trajectory, frame.stamp_ns, cfg.pose_max_dt_s)
+            pose = (
+                pose_at.get(int(frame.stamp_ns))
+                if pose_at is not None
+                else _pose_at(trajectory, frame.stamp_ns, cfg.pose_max_dt_s)
+            )
             if pose is None:
                 without_pose += 1
                 continue
@@ -282,9 +400,10 @@ def _depth_map(
             cams.append(pose)
             points.append((pts @ pose[:3, :3].T + pose[:3, 3]).astype(np.float32))
     if not cams:
+        within = "" if given.exact else f" (within {cfg.pose_max_dt_s * 1000:g} ms)"
         raise InputError(
             f"{source_path}: none of its {frames_read} depth frames has a pose in "
-            f"{run.files['trajectory']} (within {cfg.pose_max_dt_s * 1000:g} ms)",
+            f"{given.poses_from}{within}",
             hint="is --input the log this run was made from?",
         )
     poses = np.stack(cams)
@@ -295,7 +414,10 @@ def _depth_map(
         )
         up = up_from_accelerometer(at[valid], np.stack(accel)[valid]) if valid.any() else None
     up = up or up_from_cameras(poses)
-    cloud, cloud_source = _floor_points(run, points)
+    cloud, cloud_source = given.floor_points or (
+        np.concatenate(points).astype(np.float64),
+        "depth frames",
+    )
     centre = poses[:, :3, 3].mean(axis=0)
     floor = find_floor(cloud, up.direction, centre, seed=cfg.seed)
 
@@ -308,7 +430,7 @@ def _depth_map(
     grid = _carve(scans, path_xy, cfg)
     report = {
         "kind": "depth",
-        "run": str(run.path),
+        "run": str(given.run_path),
         "input": str(source_path),
         "resolution_m": cfg.resolution_m,
         "height_band_m": list(cfg.height_band_m),
@@ -349,6 +471,14 @@ def _depth_and_imu(source: Any) -> Any:
             yield frame
 
 
+def _exact_poses(trajectory: Trajectory) -> dict[int, F64]:
+    """World-from-body pose by stamp (ns)."""
+    return {
+        int(t): np.asarray(p, dtype=np.float64)
+        for t, p in zip(trajectory.stamps_ns, trajectory.world_from_body, strict=True)
+    }
+
+
 def _pose_at(trajectory: Trajectory, stamp_ns: int, max_dt_s: float) -> F64 | None:
     from slamcli.geometry import interpolate_poses
 
@@ -372,19 +502,6 @@ def _back_project(depth_m: F32, camera: PinholeCamera, step: int, max_depth_m: f
     d = z[rows, cols].astype(np.float64)
     pixels = undistort_points(camera, np.stack([cols * step, rows * step], axis=1))
     return unproject(camera, pixels, d)
-
-
-def _floor_points(run: RunRecord, points: list[F32]) -> tuple[F64, str]:
-    """Points to look for the floor in: points.ply, else mesh.ply's vertices, else the depth."""
-    for kind in ("points", "mesh"):
-        path = run.files.get(kind)
-        if path is not None:
-            from slamcli.formats.mesh import read_points_ply
-
-            cloud, _ = read_points_ply(path)
-            if len(cloud):
-                return cloud, path.name
-    return np.concatenate(points).astype(np.float64), "depth frames"
 
 
 def _clip_rays(cam: F64, pts: F64, lo: float, hi: float) -> _Rays:
@@ -424,21 +541,19 @@ def _carve(scans: _Scans, also_xy: F64, cfg: MapSettings) -> LogOddsGrid:
 # --- EKF runs --------------------------------------------------------------------------------
 
 
-def _landmark_map(
-    run: RunRecord,
-    trajectory: Trajectory,
-    source_path: Path,
-    cfg: MapSettings,
-) -> BuiltMap:
+def _landmark_map(given: MapInput, cfg: MapSettings) -> BuiltMap:
     from slamcli.formats import open_source
     from slamcli.geometry import interpolate_planar, se3_to_planar
     from slamcli.types import LandmarkFrame
 
-    landmarks = run.landmarks()
+    trajectory, source_path = given.trajectory, given.input_path
+    landmarks = given.landmarks
+    if landmarks is None:
+        landmarks = LandmarkMap(np.zeros(0, np.int64), np.zeros((0, 2)))
     planar = se3_to_planar(trajectory.world_from_body)
     stamps: list[int] = []
     frames: list[LandmarkFrame] = []
-    with open_source(source_path, **run.source_options) as source:
+    with open_source(source_path, **given.source_options) as source:
         for frame in source.frames(("landmarks",)):
             if isinstance(frame, LandmarkFrame) and len(frame.ranges_m):
                 stamps.append(int(frame.stamp_ns))
@@ -471,7 +586,7 @@ def _landmark_map(
         grid.set_cells(grid.disc_cells(landmarks.xy, cfg.landmark_radius_m), L_MAX)
     report = {
         "kind": "landmarks",
-        "run": str(run.path),
+        "run": str(given.run_path),
         "input": str(source_path),
         "resolution_m": cfg.resolution_m,
         "landmarks": len(landmarks),

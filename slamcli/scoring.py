@@ -1,0 +1,206 @@
+"""How a run is scored: its accuracy against the source's ground truth, and report.png.
+
+RGB-D and monocular runs get ATE and RPE after SE(3) or Sim(3) alignment
+(:func:`evaluate_run`); planar runs the SE(2) ATE, the landmark RMSE and NEES
+(:func:`evaluate_planar_run`); a run of several robots each robot's ATE, and all of them under
+one common alignment (:func:`evaluate_robots`).
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import replace
+from typing import Any
+
+from slamcli.errors import InputError
+from slamcli.rundir import RunDir, Timings
+from slamcli.types import LandmarkMap, SlamResult, Trajectory
+
+log = logging.getLogger(__name__)
+
+
+def evaluate_robots(
+    truths: dict[int, Trajectory],
+    true_landmarks: LandmarkMap | None,
+    result: SlamResult,
+    run: RunDir,
+    timings: Timings,
+) -> dict[str, Any]:
+    """Each robot's ATE of a several-robot run (``result.robots``), all robots under one
+    common alignment, and report.png with every robot on one map."""
+    robots: dict[str, Any] = {}
+    if truths:
+        with timings.stage("evaluate"):
+            robots = _robot_errors(truths, result.robots)
+    with timings.stage("report"):
+        robots["plotted"] = _plot_robots(run, result.robots, truths, robots, result, true_landmarks)
+    return robots
+
+
+def evaluate_run(
+    groundtruth: Trajectory,
+    result: SlamResult,
+    run: RunDir,
+    timings: Timings,
+    align: str,
+) -> dict[str, Any]:
+    """ATE and RPE of the run's trajectory after ``align`` (``se3`` or ``sim3``), and
+    report.png (the trajectories, the errors, the mesh when there is one)."""
+    from slamcli.evaluation import evaluate
+    from slamcli.report import plot_evaluation
+
+    assert result.trajectory is not None
+    estimate, mesh = result.trajectory, result.mesh
+
+    with timings.stage("evaluate"):
+        try:
+            ev = evaluate(groundtruth, estimate, align=align, rpe_delta=1)
+        except InputError as exc:
+            log.warning("no accuracy figures: %s", exc.msg)
+            return {}
+    with timings.stage("report"):
+        plot_evaluation(run.output("report.png"), ev, "ground truth", "estimate", mesh=mesh)
+    return {"evaluation": ev.to_dict()}
+
+
+def evaluate_planar_run(
+    groundtruth: Trajectory | None,
+    true_landmarks: LandmarkMap | None,
+    result: SlamResult,
+    run: RunDir,
+    timings: Timings,
+) -> dict[str, Any]:
+    """SE(2) ATE, landmark RMSE and NEES of a planar run (when there is ground truth), the same
+    for dead reckoning, and report.png (a map of landmarks with 3σ ellipses in any case)."""
+    from slamcli.planar_eval import evaluate_planar
+    from slamcli.report import plot_landmark_run
+
+    assert result.trajectory is not None
+    metrics: dict[str, Any] = {}
+    evaluation = None
+    if groundtruth is not None:
+        with timings.stage("evaluate"):
+            known = result.metrics.get("association") == "known"
+            try:
+                smoothed = result.filtered is not None
+                evaluation = evaluate_planar(
+                    groundtruth,
+                    result.trajectory,
+                    est_cov=None if smoothed else result.pose_covariances,
+                    landmarks=result.landmarks,
+                    true_landmarks=true_landmarks,
+                    known_ids=known,
+                )
+                metrics["evaluation"] = evaluation.to_dict()
+                if result.filtered is not None:
+                    # The filter's own path: its accuracy, and the consistency of its
+                    # covariances (NEES), which belong to it.
+                    filt = evaluate_planar(
+                        groundtruth, result.filtered, est_cov=result.pose_covariances
+                    )
+                    metrics["evaluation"]["trajectory"] = "smoothed"
+                    metrics["evaluation"]["nees"] = filt.to_dict().get("nees")
+                    # The report's NEES panel shows the filter's, the one that has covariances.
+                    evaluation = replace(evaluation, nees=filt.nees)
+                    metrics["filtered"] = {
+                        "ate": filt.ate.to_dict(),
+                        "ate_unaligned": filt.ate_unaligned.to_dict(),
+                    }
+                if result.dead_reckoning is not None:
+                    dr = evaluate_planar(groundtruth, result.dead_reckoning)
+                    metrics["dead_reckoning"] = {
+                        "ate": dr.ate.to_dict(),
+                        "ate_unaligned": dr.ate_unaligned.to_dict(),
+                    }
+            except InputError as exc:
+                log.warning("no accuracy figures: %s", exc.msg)
+                evaluation = None
+    with timings.stage("report"):
+        plot_landmark_run(
+            run.output("report.png"),
+            estimate=result.trajectory,
+            landmarks=result.landmarks,
+            evaluation=evaluation,
+            true_landmarks=true_landmarks,
+            dead_reckoning=result.dead_reckoning,
+            series=result.series,
+        )
+    return metrics
+
+
+def _plot_robots(
+    run: RunDir,
+    robots: dict[int, Trajectory],
+    truths: dict[int, Trajectory],
+    evaluation: dict[str, Any],
+    result: SlamResult,
+    true_landmarks: LandmarkMap | None,
+) -> list[int]:
+    """report.png of a several-robot run: every robot on one map, under the common alignment
+    when there is one. Returns the robots drawn."""
+    from slamcli.report import plot_multi_robot_run
+
+    per = evaluation.get("per_robot", {})
+    plot_multi_robot_run(
+        run.output("report.png"),
+        estimates=robots,
+        truths=truths,
+        transform=evaluation.get("transform"),
+        landmarks=result.landmarks,
+        true_landmarks=true_landmarks,
+        ate={int(k): v["ate_common"]["rmse"] for k, v in per.items() if "ate_common" in v},
+    )
+    return sorted(robots)
+
+
+def _robot_errors(
+    truths: dict[int, Trajectory], estimates: dict[int, Trajectory]
+) -> dict[str, Any]:
+    """ATE of each robot of a several-robot run: after its own SE(2) alignment, and all robots
+    under one common SE(2) alignment (one rigid fit over every robot's poses at once; the
+    estimates share one world frame, so one transform must fit them all). Ground truth is
+    interpolated at the estimate's stamps, which must lie inside its span."""
+    import numpy as np
+
+    from slamcli.geometry import interpolate_planar, se3_to_planar
+    from slamcli.graphs.landmark_graph import rigid_fit_2d
+    from slamcli.planar_eval import evaluate_planar
+
+    per: dict[str, Any] = {}
+    est_xy, gt_xy, owner = [], [], []
+    for ident, est in sorted(estimates.items()):
+        gt = truths.get(ident)
+        if gt is None:
+            continue
+        try:
+            own = evaluate_planar(gt, est).ate.to_dict()
+        except InputError as exc:
+            log.warning("robot %d: no accuracy figures: %s", ident, exc.msg)
+            continue
+        g = interpolate_planar(gt.stamps_ns, se3_to_planar(gt.world_from_body), est.stamps_ns)
+        ok = np.isfinite(g).all(axis=1)
+        est_xy.append(se3_to_planar(est.world_from_body)[ok, :2])
+        gt_xy.append(g[ok, :2])
+        owner.append(np.full(int(ok.sum()), ident))
+        per[str(ident)] = {"ate": own}
+    if not est_xy:
+        return {}
+    src, dst, who = np.concatenate(est_xy), np.concatenate(gt_xy), np.concatenate(owner)
+    transform, rms = rigid_fit_2d(src, dst)
+    c, s = np.cos(transform[2]), np.sin(transform[2])
+    moved = src @ np.array([[c, s], [-s, c]]) + transform[:2]
+    err = np.hypot(*(moved - dst).T)
+    for key in per:
+        e = err[who == int(key)]
+        per[key]["ate_common"] = {
+            "rmse": float(np.sqrt(np.mean(e * e))),
+            "mean": float(e.mean()),
+            "max": float(e.max()),
+            "matched": int(e.size),
+        }
+    return {
+        "alignment": "se2, one transform for all robots",
+        "transform": transform.tolist(),
+        "ate_common": {"rmse": rms, "mean": float(err.mean()), "max": float(err.max())},
+        "per_robot": per,
+    }
