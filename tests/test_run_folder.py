@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -41,11 +42,11 @@ def _dense_run(folder: Path, record: dict | None = None) -> Path:
 
 
 @pytest.fixture(scope="module")
-def ekf_run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from slamcli.run import run_pipeline
-
-    out = tmp_path_factory.mktemp("ekf") / "run"
-    return run_pipeline(LANDMARKS, "ekf", out).run_dir
+def ekf_run(shared_run: Any) -> Path:
+    """``slamcli run ekf`` on the sample landmark world, made once per session."""
+    run = shared_run("run", "ekf", LANDMARKS)
+    assert run.exit_code == 0, run.output
+    return Path(run.out)
 
 
 def test_a_dense_run_folder(tmp_path: Path) -> None:
