@@ -28,10 +28,13 @@ def evaluate_robots(
 ) -> dict[str, Any]:
     """Each robot's ATE of a several-robot run (``result.robots``), all robots under one
     common alignment, and report.png with every robot on one map."""
+    from slamcli.planar_eval import evaluate_common_frame
+
     robots: dict[str, Any] = {}
     if truths:
         with timings.stage("evaluate"):
-            robots = _robot_errors(truths, result.robots)
+            common = evaluate_common_frame(truths, dict(sorted(result.robots.items())))
+            robots = common.to_dict() if common is not None else {}
     with timings.stage("report"):
         robots["plotted"] = _plot_robots(run, result.robots, truths, robots, result, true_landmarks)
     return robots
@@ -151,56 +154,3 @@ def _plot_robots(
         ate={int(k): v["ate_common"]["rmse"] for k, v in per.items() if "ate_common" in v},
     )
     return sorted(robots)
-
-
-def _robot_errors(
-    truths: dict[int, Trajectory], estimates: dict[int, Trajectory]
-) -> dict[str, Any]:
-    """ATE of each robot of a several-robot run: after its own SE(2) alignment, and all robots
-    under one common SE(2) alignment (one rigid fit over every robot's poses at once; the
-    estimates share one world frame, so one transform must fit them all). Ground truth is
-    interpolated at the estimate's stamps, which must lie inside its span."""
-    import numpy as np
-
-    from slamcli.geometry import interpolate_planar, se3_to_planar
-    from slamcli.graphs.landmark_graph import rigid_fit_2d
-    from slamcli.planar_eval import evaluate_planar
-
-    per: dict[str, Any] = {}
-    est_xy, gt_xy, owner = [], [], []
-    for ident, est in sorted(estimates.items()):
-        gt = truths.get(ident)
-        if gt is None:
-            continue
-        try:
-            own = evaluate_planar(gt, est).ate.to_dict()
-        except InputError as exc:
-            log.warning("robot %d: no accuracy figures: %s", ident, exc.msg)
-            continue
-        g = interpolate_planar(gt.stamps_ns, se3_to_planar(gt.world_from_body), est.stamps_ns)
-        ok = np.isfinite(g).all(axis=1)
-        est_xy.append(se3_to_planar(est.world_from_body)[ok, :2])
-        gt_xy.append(g[ok, :2])
-        owner.append(np.full(int(ok.sum()), ident))
-        per[str(ident)] = {"ate": own}
-    if not est_xy:
-        return {}
-    src, dst, who = np.concatenate(est_xy), np.concatenate(gt_xy), np.concatenate(owner)
-    transform, rms = rigid_fit_2d(src, dst)
-    c, s = np.cos(transform[2]), np.sin(transform[2])
-    moved = src @ np.array([[c, s], [-s, c]]) + transform[:2]
-    err = np.hypot(*(moved - dst).T)
-    for key in per:
-        e = err[who == int(key)]
-        per[key]["ate_common"] = {
-            "rmse": float(np.sqrt(np.mean(e * e))),
-            "mean": float(e.mean()),
-            "max": float(e.max()),
-            "matched": int(e.size),
-        }
-    return {
-        "alignment": "se2, one transform for all robots",
-        "transform": transform.tolist(),
-        "ate_common": {"rmse": rms, "mean": float(err.mean()), "max": float(err.max())},
-        "per_robot": per,
-    }
