@@ -56,8 +56,8 @@ def watched(*, deferred: bool = False) -> Iterator[Callable[[], None]]:
         raise
     finally:
         signal.signal(signal.SIGINT, previous)
-        if received and deferred:
-            _deliver(previous, signal.SIGINT, None)
+    if received and deferred:
+        _deliver(previous, signal.SIGINT, None)
 
 
 def _main_thread() -> bool:
