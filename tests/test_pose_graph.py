@@ -1,5 +1,6 @@
-"""Pose-graph optimisation on GTSAM: synthetic loops with known answers, Sim(3) scale drift,
-robust kernels against wrong loop closures, the g2o writer's round trip, and sphere2500."""
+"""Pose-graph optimisation on GTSAM: synthetic loops with known answers in SE(3) and SE(2),
+Sim(3) scale drift, robust kernels and graduated non-convexity against wrong loop closures, the
+g2o writer's round trip, and sphere2500."""
 
 from __future__ import annotations
 
@@ -10,11 +11,15 @@ import pytest
 from conftest import shared_path
 
 from slamcli.formats.g2o import PoseGraph, read_g2o, write_g2o, write_g2o_se3
+from slamcli.geometry.planar import between_planar, compose_planar
 from slamcli.geometry.se3 import compose, inverse, make_pose, se3_exp, so3_exp
 from slamcli.graphs.pose_graph import (
     Edge,
+    edge_chi2,
     from_g2o,
     graph_error,
+    optimize_gnc,
+    optimize_se2,
     optimize_se3,
     optimize_sim3,
     save_g2o,
@@ -161,6 +166,104 @@ def test_kernel_applies_only_to_robust_edges() -> None:
     assert result.outliers.tolist() == [N - 1, N]
     clean = optimize_se3(initial, [e for k, e in enumerate(edges) if k not in wrong])
     assert position_error(result.poses, clean.poses) > 1.0
+
+
+# --- SE(2) --------------------------------------------------------------------------------
+
+INFO_2D = np.diag([TRANS_SIGMA**-2] * 2 + [ROT_SIGMA**-2])
+
+
+def planar_loop_problem(seed: int = 0) -> tuple[np.ndarray, np.ndarray, list[Edge]]:
+    """(truth (N, 3), odometry-chain initial poses, edges) on a planar circle: noisy odometry
+    plus two loop closures."""
+    rng = np.random.default_rng(seed)
+    angle = 2 * np.pi * np.arange(N) / N
+    truth = np.stack([10 * np.cos(angle), 10 * np.sin(angle), angle + np.pi / 2], axis=1)
+    sigmas = [TRANS_SIGMA, TRANS_SIGMA, ROT_SIGMA]
+    edges = []
+    for a, b in [*((i, i + 1) for i in range(N - 1)), (N - 1, 0), (N // 2, 0)]:
+        rel = between_planar(truth[a], truth[b]) + rng.normal(0.0, sigmas)
+        loop = b != a + 1
+        kind = "loop" if loop else "odometry"
+        edges.append(Edge(a, b, rel, information=INFO_2D, robust=loop, kind=kind))
+    initial = [truth[0]]
+    for e in edges[: N - 1]:
+        initial.append(compose_planar(initial[-1], e.a_from_b))
+    return truth, np.stack(initial), edges
+
+
+def test_se2_loop_closure_reduces_error_and_drift() -> None:
+    truth, initial, edges = planar_loop_problem()
+    result = optimize_se2(initial, edges)
+    assert result.poses.shape == (N, 3) and result.scales is None
+    assert result.error_after < 0.01 * result.error_before
+    assert result.error_before == pytest.approx(graph_error(initial, edges), rel=1e-12)
+    assert result.error_after == pytest.approx(0.5 * result.edge_chi2.sum(), rel=1e-9)
+    np.testing.assert_allclose(edge_chi2(result.poses, edges), result.edge_chi2, rtol=1e-6)
+    drift = np.linalg.norm(initial[:, :2] - truth[:, :2], axis=1).max()
+    corrected = np.linalg.norm(result.poses[:, :2] - truth[:, :2], axis=1).max()
+    assert drift > 0.5 and corrected < 0.25 * drift
+    assert result.poses[0].tobytes() == initial[0].tobytes()
+
+
+def test_se2_matches_gtsams_own_levenberg_marquardt() -> None:
+    gtsam = pytest.importorskip("gtsam")
+    _, initial, edges = planar_loop_problem(seed=1)
+    graph = gtsam.NonlinearFactorGraph()
+    values = gtsam.Values()
+    for i, (x, y, theta) in enumerate(initial.tolist()):
+        values.insert(i, gtsam.Pose2(x, y, theta))
+    for e in edges:
+        noise = gtsam.noiseModel.Gaussian.Information(e.information)
+        graph.add(gtsam.BetweenFactorPose2(e.a, e.b, gtsam.Pose2(*e.a_from_b), noise))
+    graph.add(gtsam.NonlinearEqualityPose2(0, values.atPose2(0)))
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, values, gtsam.LevenbergMarquardtParams())
+    solution = optimizer.optimize()
+    result = optimize_se2(initial, edges)
+    assert result.error_after == optimizer.error()
+    assert result.iterations == optimizer.iterations()
+    theirs = [[p.x(), p.y(), p.theta()] for p in map(solution.atPose2, range(N))]
+    assert result.poses.tobytes() == np.array(theirs).tobytes()
+
+
+def test_gnc_finds_wrong_planar_loops_and_keeps_the_right_ones() -> None:
+    _, initial, edges = planar_loop_problem(seed=2)
+    rng = np.random.default_rng(7)
+    wrong = []
+    for a, b in [(3, 25), (10, 33), (15, 38)]:
+        wrong.append(len(edges))
+        bogus = rng.uniform([-5, -5, -3], [5, 5, 3])
+        edges.append(Edge(a, b, bogus, information=INFO_2D, robust=True, kind="loop"))
+    found = optimize_gnc(initial, edges, inlier_chi2=30.0)
+    assert found.outliers.tolist() == wrong
+    assert found.iterations == 0 and found.edge_chi2[wrong].min() > 30.0
+    clean = optimize_se2(initial, [e for k, e in enumerate(edges) if k not in wrong])
+    assert np.abs(found.poses[:, :2] - clean.poses[:, :2]).max() < 0.05
+
+
+@pytest.mark.parametrize(
+    ("change", "match"),
+    [
+        (lambda p, e: (p[:, :2], e), r"planar poses must have shape \(N, 3\)"),
+        (lambda p, e: (np.vstack([p, [np.nan, 0, 0]]), e), rf"poses\[{N}\] is not finite"),
+        (lambda p, e: (p, [*e, Edge(1, 2, np.eye(4))]), r"not a finite \(3,\) x, y, yaw row"),
+        (
+            lambda p, e: (p, [*e, Edge(1, 2, np.zeros(3), information=np.eye(6))]),
+            r"information must be \(3, 3\), got \(6, 6\)",
+        ),
+    ],
+)
+def test_bad_planar_input_raises(change, match: str) -> None:  # type: ignore[no-untyped-def]
+    _, initial, edges = planar_loop_problem()
+    poses, bad_edges = change(initial, edges)
+    with pytest.raises(ValueError, match=match):
+        optimize_se2(poses, bad_edges)
+
+
+def test_unknown_solve_option_is_refused() -> None:
+    _, initial, edges = planar_loop_problem()
+    with pytest.raises(TypeError, match=r"unknown solve option.* kernl"):
+        optimize_se2(initial, edges, kernl="cauchy")  # type: ignore[call-arg]
 
 
 def test_sim3_recovers_scale_drift() -> None:

@@ -5,11 +5,10 @@ returns the optimised graph (same pose ids, same edges) with the figures ``run.j
 
 Conventions
 -----------
-- 2-D graphs are optimised on SE(2) (GTSAM ``Pose2`` and ``BetweenFactorPose2``), 3-D graphs
-  on SE(3) through :func:`slamcli.graphs.pose_graph.optimize_se3`. A g2o ``EDGE_SE2``'s
-  information is in the order (x, y, theta) of the residual ``measured⁻¹ · a⁻¹ · b``; GTSAM's
-  ``Pose2`` chart at the origin is that same (x, y, theta) of the relative pose, so the matrix
-  is used as it is and every edge's χ² is the one g2o computes.
+- 2-D graphs are optimised on SE(2), 3-D graphs on SE(3), through
+  :func:`slamcli.graphs.pose_graph.optimize_se2` and
+  :func:`~slamcli.graphs.pose_graph.optimize_se3` (each edge's χ² is the one g2o computes; see
+  :mod:`slamcli.graphs.pose_graph`).
 - The graph's pose ids are the listed vertices and every id an edge names. A pose without a
   ``VERTEX`` line (Manhattan lists edges only) starts where the edges place it: the
   consecutive-id (odometry) edges are chained from the smallest id first, loop closures reach
@@ -23,10 +22,11 @@ Conventions
   final solve's graph (``0.5 Σ ρ(r²)``, ``0.5 Σ χ²`` without a kernel) at the initial and the
   optimised values.
 - Outliers: GTSAM's graduated non-convexity (``GncLMOptimizer``, truncated least squares,
-  odometry edges known inliers, inlier threshold the ``1 - 1e-5`` χ² quantile) over every edge
-  from the starting poses drops the candidates; a least-squares solve without them re-admits
-  the loop closures within the 99 % χ² gate (up to 5 rounds), and the loop closures beyond
-  the gate are the outliers. The final solve leaves them out, with ``kernel`` when one is
+  odometry edges known inliers, inlier threshold the ``1 - 1e-5`` χ² quantile;
+  :func:`slamcli.graphs.pose_graph.optimize_gnc`) over every edge from the starting poses
+  drops the candidates; a least-squares solve without them re-admits the loop closures
+  within the 99 % χ² gate (up to 5 rounds), and the loop closures beyond the gate are the
+  outliers. The final solve leaves them out, with ``kernel`` when one is
   given. The GNC solve does not report its iteration count (``iterations`` 0).
 """
 
@@ -46,10 +46,11 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError, InputError
 from slamcli.geometry.chi2 import chi2_quantile
 from slamcli.geometry.planar import planar_to_se3, se3_to_planar
-from slamcli.geometry.se3 import compose, inverse, make_pose, quat_xyzw_to_matrix
+from slamcli.geometry.se3 import inverse, make_pose, quat_xyzw_to_matrix
 
 if TYPE_CHECKING:
     from slamcli.formats.g2o import PoseGraph
+    from slamcli.graphs.pose_graph import PoseGraphResult
 
 F64 = NDArray[np.float64]
 KERNELS = ("none", "huber", "cauchy", "dcs")
@@ -87,6 +88,28 @@ class Solve:
     edge_chi2: F64
     edges_used: NDArray[np.bool_]
     time_s: float
+
+    @classmethod
+    def of(
+        cls,
+        result: PoseGraphResult,
+        kernel: str,
+        kernel_width: float | None,
+        edge_chi2: F64,
+        edges_used: NDArray[np.bool_],
+        clock: float,
+    ) -> Solve:
+        """The solve that gave ``result``, started at ``time.perf_counter()`` = ``clock``."""
+        return cls(
+            kernel=kernel,
+            kernel_width=kernel_width,
+            error_before=result.error_before,
+            error_after=result.error_after,
+            iterations=result.iterations,
+            edge_chi2=edge_chi2,
+            edges_used=edges_used.copy(),
+            time_s=time.perf_counter() - clock,
+        )
 
 
 @dataclass(frozen=True)
@@ -207,7 +230,6 @@ def optimize_graph(
     ids = initial.vertex_ids
     fixed_ids = tuple(sorted(set(initial.fixed) & set(ids.tolist()))) or (int(ids[0]),)
     fixed = tuple(int(i) for i in np.searchsorted(ids, fixed_ids))
-    index = np.searchsorted(ids, initial.edges)
     loop = np.abs(initial.edges[:, 1] - initial.edges[:, 0]) != 1
     everything = np.ones(len(loop), dtype=bool)
     bound = chi2_quantile(OUTLIER_PROBABILITY, _dof(graph.dim))
@@ -216,15 +238,14 @@ def optimize_graph(
     def solve(
         name: str, w: float | None, used: NDArray[np.bool_], start: F64 | None = None
     ) -> tuple[F64, Solve]:
-        return _solve(initial, index, loop, used, fixed, name, w, max_iterations, start)
+        return _solve(initial, used, fixed, name, w, max_iterations, start)
 
     detection: Solve | None = None
     outliers = np.zeros(0, dtype=np.int64)
     if not find_outliers:
         poses, final = solve(kernel, width, everything)
     else:
-        detection, weights = _gnc(initial, index, loop, fixed, max_iterations)
-        rejected = loop & (weights < 0.5)
+        detection, rejected = _gnc(initial, fixed, max_iterations)
         for _ in range(_RECHECK_ROUNDS):
             poses, final = solve("none", None, ~rejected)
             recheck = loop & (final.edge_chi2 > bound)
@@ -254,63 +275,26 @@ def gnc_inlier_bound(dim: int) -> float:
 
 
 def _gnc(
-    graph: PoseGraph,
-    index: NDArray[np.intp],
-    loop: NDArray[np.bool_],
-    fixed: tuple[int, ...],
-    max_iterations: int,
-) -> tuple[Solve, F64]:
-    """GTSAM's graduated non-convexity (Levenberg–Marquardt inside, truncated least squares
-    loss, odometry edges and the gauge known inliers) over every edge of ``graph``; returns
-    the solve and the (E,) weights of the edges (0 or 1 for loop closures)."""
-    import gtsam
-
-    from slamcli.graphs.pose_graph import _build_graph, from_g2o
+    graph: PoseGraph, fixed: tuple[int, ...], max_iterations: int
+) -> tuple[Solve, NDArray[np.bool_]]:
+    """GTSAM's graduated non-convexity over every edge of ``graph`` (odometry edges and the
+    gauge known inliers); returns the solve and the (E,) loop closures it drops."""
+    from slamcli.graphs.pose_graph import from_g2o, optimize_gnc
 
     clock = time.perf_counter()
-    n = len(loop)
-    values = gtsam.Values()
-    factor_graph = gtsam.NonlinearFactorGraph()
-    if graph.dim == 2:
-        info = 0.5 * (graph.information + np.swapaxes(graph.information, 1, 2))
-        for i, (x, y, theta) in enumerate(graph.poses.tolist()):
-            values.insert(i, gtsam.Pose2(x, y, theta))
-        for k, ((a, b), (x, y, theta)) in enumerate(
-            zip(index.tolist(), graph.measurements.tolist(), strict=True)
-        ):
-            noise = gtsam.noiseModel.Gaussian.Information(info[k])
-            factor_graph.add(gtsam.BetweenFactorPose2(a, b, gtsam.Pose2(x, y, theta), noise))
-        for i in fixed:
-            factor_graph.add(gtsam.NonlinearEqualityPose2(i, values.atPose2(i)))
-    else:
-        matrices, edges, _ = from_g2o(dataclasses.replace(graph, fixed=()))
-        factor_graph, _ = _build_graph(matrices, None, edges, fixed, "none", None, 1.0)
-        for i, t in enumerate(matrices):
-            values.insert(i, gtsam.Pose3(t))
-    base = gtsam.LevenbergMarquardtParams()
-    base.setMaxIterations(int(max_iterations))
-    base.setVerbosityLM("SILENT")
-    params = gtsam.GncLMParams(base)
-    params.setLossType(gtsam.GncLossType.TLS)
-    params.setKnownInliers(np.flatnonzero(~loop).tolist() + list(range(n, factor_graph.size())))
-    params.setAllowNonNoiseModelFactors(True)
-    optimizer = gtsam.GncLMOptimizer(factor_graph, values, params)
-    # GTSAM's threshold is on a factor's error, 0.5 χ².
-    optimizer.setInlierCostThresholds(0.5 * gnc_inlier_bound(graph.dim))
-    solution = optimizer.optimize()
-    weights = np.asarray(optimizer.getWeights(), dtype=np.float64).reshape(-1)[:n]
-    chi2 = np.array([2.0 * factor_graph.at(k).error(solution) for k in range(n)]).reshape(-1)
-    solve = Solve(
-        kernel=GNC_METHOD,
-        kernel_width=math.sqrt(gnc_inlier_bound(graph.dim)),
-        error_before=float(factor_graph.error(values)),
-        error_after=float(factor_graph.error(solution)),
-        iterations=0,
-        edge_chi2=chi2,
-        edges_used=np.ones(n, dtype=bool),
-        time_s=time.perf_counter() - clock,
+    nodes, edges, _ = from_g2o(dataclasses.replace(graph, fixed=()))
+    result = optimize_gnc(
+        nodes,
+        edges,
+        inlier_chi2=gnc_inlier_bound(graph.dim),
+        fixed=fixed,
+        max_iterations=max_iterations,
     )
-    return solve, weights
+    dropped = np.zeros(len(edges), dtype=bool)
+    dropped[result.outliers] = True
+    used = np.ones(len(edges), dtype=bool)
+    width = math.sqrt(gnc_inlier_bound(graph.dim))
+    return Solve.of(result, GNC_METHOD, width, result.edge_chi2, used, clock), dropped
 
 
 def complete_vertices(graph: PoseGraph) -> tuple[PoseGraph, tuple[int, ...]]:
@@ -390,10 +374,19 @@ def _from_matrices(dim: int, matrices: F64) -> F64:
     return np.concatenate([matrices[:, :3, 3], matrix_to_quat_xyzw(matrices)], axis=1)
 
 
+def _to_nodes(dim: int, values: F64) -> F64:
+    """g2o rows as the poses :mod:`slamcli.graphs.pose_graph` takes: (N, 3) rows themselves
+    (a copy) in 2-D, (N, 4, 4) transforms in 3-D."""
+    return np.array(values, dtype=np.float64) if dim == 2 else _to_matrices(dim, values)
+
+
+def _from_nodes(dim: int, nodes: F64) -> F64:
+    """The inverse of :func:`_to_nodes`."""
+    return nodes if dim == 2 else _from_matrices(dim, nodes)
+
+
 def _solve(
     graph: PoseGraph,
-    index: NDArray[np.intp],
-    loop: NDArray[np.bool_],
     used: NDArray[np.bool_],
     fixed: tuple[int, ...],
     kernel: str,
@@ -404,143 +397,34 @@ def _solve(
     """Optimise ``graph``'s poses using the ``used`` edges, from ``start`` (g2o rows) or the
     graph's own poses; returns (poses as g2o rows, solve). ``error_before`` is always at the
     graph's own poses."""
-    clock = time.perf_counter()
-    if graph.dim == 2:
-        poses, before, after, iterations, chi2 = _solve_se2(
-            graph, index, loop, used, fixed, kernel, width, max_iterations, start
-        )
-    else:
-        poses, before, after, iterations, chi2 = _solve_se3(
-            graph, index, loop, used, fixed, kernel, width, max_iterations, start
-        )
-    solve = Solve(
-        kernel=kernel,
-        kernel_width=width,
-        error_before=before,
-        error_after=after,
-        iterations=iterations,
-        edge_chi2=chi2,
-        edges_used=used.copy(),
-        time_s=time.perf_counter() - clock,
+    from slamcli.graphs.pose_graph import (
+        edge_chi2,
+        from_g2o,
+        graph_error,
+        optimize_se2,
+        optimize_se3,
     )
-    return poses, solve
 
-
-def _solve_se2(
-    graph: PoseGraph,
-    index: NDArray[np.intp],
-    loop: NDArray[np.bool_],
-    used: NDArray[np.bool_],
-    fixed: tuple[int, ...],
-    kernel: str,
-    width: float | None,
-    max_iterations: int,
-    start: F64 | None,
-) -> tuple[F64, float, float, int, F64]:
-    import gtsam
-
-    from slamcli.graphs.pose_graph import robust_kernel
-
-    make_kernel = robust_kernel(kernel, width, 3)
-    info = 0.5 * (graph.information + np.swapaxes(graph.information, 1, 2))
-    values = gtsam.Values()
-    for i, (x, y, theta) in enumerate(graph.poses.tolist()):
-        values.insert(i, gtsam.Pose2(x, y, theta))
-    factors = []
-    for k, ((a, b), (x, y, theta)) in enumerate(
-        zip(index.tolist(), graph.measurements.tolist(), strict=True)
-    ):
-        noise: Any = gtsam.noiseModel.Gaussian.Information(info[k])
-        if loop[k] and make_kernel is not None:
-            noise = gtsam.noiseModel.Robust.Create(make_kernel(), noise)
-        factors.append(gtsam.BetweenFactorPose2(a, b, gtsam.Pose2(x, y, theta), noise))
-    factor_graph = gtsam.NonlinearFactorGraph()
-    for k in np.flatnonzero(used).tolist():
-        factor_graph.add(factors[k])
-    for i in fixed:
-        factor_graph.add(gtsam.NonlinearEqualityPose2(i, values.atPose2(i)))
-    begin = values
-    if start is not None:
-        begin = gtsam.Values()
-        for i, (x, y, theta) in enumerate(start.tolist()):
-            begin.insert(i, gtsam.Pose2(x, y, theta))
-    solution, after, iterations = _levenberg_marquardt(factor_graph, begin, max_iterations)
-    before = float(factor_graph.error(values))
-    poses = np.array(
-        [[p.x(), p.y(), p.theta()] for p in (solution.atPose2(i) for i in range(len(graph.poses)))]
-    ).reshape(-1, 3)
-    chi2 = np.array(
-        [_chi2(f.unwhitenedError(solution), info[k]) for k, f in enumerate(factors)]
-    ).reshape(-1)
-    return poses, before, after, iterations, chi2
-
-
-def _solve_se3(
-    graph: PoseGraph,
-    index: NDArray[np.intp],
-    loop: NDArray[np.bool_],
-    used: NDArray[np.bool_],
-    fixed: tuple[int, ...],
-    kernel: str,
-    width: float | None,
-    max_iterations: int,
-    start: F64 | None,
-) -> tuple[F64, float, float, int, F64]:
-    from slamcli.graphs.pose_graph import Edge, from_g2o, graph_error, optimize_se3
-
-    poses, edges, _ = from_g2o(dataclasses.replace(graph, fixed=()))
+    clock = time.perf_counter()
+    nodes, edges, _ = from_g2o(dataclasses.replace(graph, fixed=()))
     kept = [e for e, u in zip(edges, used.tolist(), strict=True) if u]
-    begin = poses if start is None else _to_matrices(3, start)
+    begin = nodes if start is None else _to_nodes(graph.dim, start)
     if start is not None:
         # The fixed poses stay where the file puts them.
-        begin[list(fixed)] = poses[list(fixed)]
-    result = optimize_se3(
-        begin,
-        kept,
-        fixed=fixed,
-        kernel=kernel,
-        kernel_width=width,
-        max_iterations=max_iterations,
+        begin[list(fixed)] = nodes[list(fixed)]
+    optimize = optimize_se2 if graph.dim == 2 else optimize_se3
+    result = optimize(
+        begin, kept, fixed=fixed, kernel=kernel, kernel_width=width, max_iterations=max_iterations
     )
     chi2 = np.empty(len(edges))
     chi2[used] = result.edge_chi2
     if not used.all():
-        rel = compose(inverse(result.poses[index[~used, 0]]), result.poses[index[~used, 1]])
-        left_out: list[Edge] = [edges[k] for k in np.flatnonzero(~used).tolist()]
-        chi2[~used] = [_chi2_se3(e, r) for e, r in zip(left_out, rel, strict=True)]
-    before = (
-        result.error_before
-        if start is None
-        else graph_error(poses, kept, kernel=kernel, kernel_width=width)
-    )
-    return _from_matrices(3, result.poses), before, result.error_after, result.iterations, chi2
-
-
-def _chi2_se3(edge: Any, a_from_b: F64) -> float:
-    """χ² of an SE(3) edge at the relative pose ``a_from_b``, as GTSAM's between factor."""
-    import gtsam
-
-    measured = gtsam.Pose3(np.asarray(edge.a_from_b, dtype=np.float64))
-    r = np.asarray(measured.localCoordinates(gtsam.Pose3(a_from_b)))
-    return _chi2(r, np.asarray(edge.information, dtype=np.float64))
-
-
-def _chi2(r: Any, info: F64) -> float:
-    v = np.asarray(r, dtype=np.float64)
-    return float(v @ info @ v)
-
-
-def _levenberg_marquardt(graph: Any, initial: Any, max_iterations: int) -> tuple[Any, float, int]:
-    """GTSAM's Levenberg–Marquardt with its default parameters and an iteration cap; returns
-    the solution, its error and the iterations run."""
-    import gtsam
-
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(int(max_iterations))
-    params.setVerbosityLM("SILENT")
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
-    solution = optimizer.optimize()
-    return solution, float(graph.error(solution)), int(optimizer.iterations())
+        chi2[~used] = edge_chi2(result.poses, [edges[k] for k in np.flatnonzero(~used).tolist()])
+    solve = Solve.of(result, kernel, width, chi2, used, clock)
+    if start is not None:
+        before = graph_error(nodes, kept, kernel=kernel, kernel_width=width)
+        solve = dataclasses.replace(solve, error_before=before)
+    return _from_nodes(graph.dim, result.poses), solve
 
 
 @dataclass(frozen=True)

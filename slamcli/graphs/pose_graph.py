@@ -1,4 +1,5 @@
-"""Pose-graph optimisation on GTSAM: SE(3) graphs and Sim(3) (monocular essential) graphs.
+"""Pose-graph optimisation on GTSAM: SE(2) and SE(3) graphs, Sim(3) (monocular essential)
+graphs, and the search for wrong loop closures by graduated non-convexity.
 
 numpy in, numpy out: GTSAM objects never leave this module, and gtsam is imported inside the
 functions that need it, so importing this module is cheap.
@@ -6,7 +7,8 @@ functions that need it, so importing this module is cheap.
 Conventions
 -----------
 - A node's pose is a ``(4, 4)`` float64 ``world_from_node`` rigid transform; node ``i`` is row
-  ``i`` of the ``(N, 4, 4)`` stack.
+  ``i`` of the ``(N, 4, 4)`` stack. In SE(2) graphs it is a ``(3,)`` row x, y (m), yaw (rad)
+  of an ``(N, 3)`` stack, and an edge's ``a_from_b`` is such a row too.
 - An :class:`Edge` from ``a`` to ``b`` measures ``a_from_b`` = ``inverse(world_from_a) @
   world_from_b``: node ``b``'s pose seen from node ``a`` (GTSAM's ``BetweenFactor(a, b)``,
   g2o's ``EDGE_SE3:QUAT a b``).
@@ -14,7 +16,9 @@ Conventions
   (``[ω (3) rad, v (3) m]``), the inverse covariance of the between-factor residual
   ``Log(measured⁻¹ · a_from_b(estimate))``. This is the reverse of ``slamcli.geometry.se3``'s
   ``[rho, phi]`` twists and of g2o files (translation first): :func:`from_g2o` and
-  :func:`save_g2o` convert.
+  :func:`save_g2o` convert. SE(2) information is (3, 3) in the order (x, y, yaw) of the
+  relative pose, GTSAM ``Pose2``'s tangent order and g2o ``EDGE_SE2``'s, so it is used as a
+  g2o file gives it and every edge's χ² is the one g2o computes.
 - Sim(3): node ``i`` carries a scale ``s_i`` besides its pose, and maps points of its own
   (drifting-scale) frame into the world as ``p_w = s_i R_i p_i + t_i``, i.e. the similarity
   ``[[s_i R_i, t_i], [0, 1]]``. An edge's ``a_from_b`` holds the rotation and translation of the
@@ -32,13 +36,17 @@ Conventions
 - Robust kernels act on the whitened residual norm ``r = sqrt(chi2)`` of the edges marked
   ``robust``. ``kernel_width`` is in those units for every kernel (for DCS, GTSAM's parameter
   Φ is in squared units and gets ``kernel_width**2``); its default is ``sqrt`` of the 95 % χ²
-  quantile for the residual's dimension (6 for SE(3), 7 for Sim(3)), the usual gate.
+  quantile for the residual's dimension (3 for SE(2), 6 for SE(3), 7 for Sim(3)), the usual
+  gate.
   Cauchy and DCS reject wrong loop closures from an odometry-chain start; Huber only bounds
   their pull (a gross outlier still bends the graph), and Tukey gives zero weight to every
   edge beyond its width, so from a drifted start it also ignores the correct loops.
 - ``outliers`` are the robust edges whose ``edge_chi2`` at the solution exceeds the 99 % χ²
   quantile for that dimension. The rule is only as good as the information matrices: they must
   be real inverse covariances for χ² bounds to mean anything.
+- :func:`optimize_gnc` runs GTSAM's graduated non-convexity (``GncLMOptimizer``, truncated least
+  squares) with the edges that are not ``robust`` and the fixed nodes as known inliers; its
+  ``outliers`` are the robust edges it gives a weight below one half.
 
 Invalid arguments (index out of range, a matrix that is not a rigid transform, an information
 matrix that is not symmetric positive definite, an unknown kernel) raise ``ValueError``: these
@@ -51,7 +59,7 @@ import math
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypedDict
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -60,6 +68,8 @@ from slamcli.geometry.chi2 import chi2_quantile
 from slamcli.geometry.se3 import compose, inverse, make_pose, quat_xyzw_to_matrix
 
 if TYPE_CHECKING:
+    from typing_extensions import Unpack
+
     from slamcli.formats.g2o import PoseGraph
 
 F64 = NDArray[np.float64]
@@ -76,10 +86,12 @@ class Edge:
     Attributes:
         a, b: node indices (rows of the pose stack).
         a_from_b: (4, 4) float64 rigid transform, node ``b``'s pose in node ``a``'s frame (for
-            Sim(3): the rotation and translation of the relative similarity).
+            Sim(3): the rotation and translation of the relative similarity); in SE(2) graphs
+            (3,) x, y (m), yaw (rad).
         scale: Sim(3) only, the relative scale of ``a_from_b`` (``p_a = scale R p_b + t``).
         information: (6, 6) float64, rotation then translation (GTSAM's Pose3 tangent order);
-            for Sim(3) also (7, 7) with the log-scale last. None means identity.
+            for Sim(3) also (7, 7) with the log-scale last; for SE(2) (3, 3) in (x, y, yaw)
+            order. None means identity.
         robust: apply the chosen robust kernel to this edge (loop closures), or not (odometry).
         kind: a free label ("odometry", "loop", ...), carried through for reporting.
     """
@@ -95,18 +107,20 @@ class Edge:
 
 @dataclass
 class PoseGraphResult:
-    """What :func:`optimize_se3` and :func:`optimize_sim3` return.
+    """What the ``optimize_*`` functions return.
 
     Attributes:
-        poses: (N, 4, 4) float64 optimised ``world_from_node`` rigid transforms.
+        poses: (N, 4, 4) float64 optimised ``world_from_node`` rigid transforms; (N, 3) x, y,
+            yaw rows for SE(2).
         scales: (N,) float64 node scales (Sim(3) only; None for SE(3)).
         error_before, error_after: GTSAM's ``graph.error``, ``0.5 Σ ρ(whitened residual)``
             (``0.5 Σ chi2`` without a kernel), at the initial and optimised values.
-        iterations: Levenberg–Marquardt iterations run.
+        iterations: Levenberg–Marquardt iterations run (0 from :func:`optimize_gnc`, whose
+            GTSAM optimiser does not report them).
         edge_chi2: (E,) float64 whitened squared residual of each edge at the solution, without
             the kernel, in the order of the ``edges`` argument.
         outliers: (K,) int64 indices into ``edges`` of robust edges whose chi2 exceeds the 99 %
-            χ² bound of the residual's dimension.
+            χ² bound of the residual's dimension (of :func:`optimize_gnc`: that it drops).
     """
 
     poses: F64
@@ -118,28 +132,62 @@ class PoseGraphResult:
     scales: F64 | None = field(default=None)
 
 
+class SolveOptions(TypedDict, total=False):
+    """How the ``optimize_*`` functions solve, given as keyword arguments (all optional).
+
+    Attributes:
+        fixed: indices of nodes held exactly at their initial pose (the gauge); (0,) unless
+            given.
+        kernel: robust kernel for edges with ``robust=True``: one of :data:`KERNELS`; ``none``
+            unless given.
+        kernel_width: kernel width in whitened-residual-norm units (see the module docstring);
+            the 95 % χ² bound of the residual's dimension unless given.
+        max_iterations: Levenberg–Marquardt iteration cap; 100 unless given.
+    """
+
+    fixed: Iterable[int]
+    kernel: str
+    kernel_width: float | None
+    max_iterations: int
+
+
+_SOLVE_DEFAULTS: SolveOptions = {
+    "fixed": (0,),
+    "kernel": "none",
+    "kernel_width": None,
+    "max_iterations": 100,
+}
+
+
+def optimize_se2(
+    poses: ArrayLike, edges: Sequence[Edge], **options: Unpack[SolveOptions]
+) -> PoseGraphResult:
+    """Optimise an SE(2) pose graph with Levenberg–Marquardt.
+
+    Args:
+        poses: (N, 3) initial ``world_from_node`` x, y (m), yaw (rad).
+        edges: relative-pose measurements, ``a_from_b`` (3,) and information (3, 3) in (x, y,
+            yaw) order; ``scale`` is ignored.
+        options: see :class:`SolveOptions`.
+    """
+    stack = _check_planar_poses(poses)
+    _check_edges(edges, len(stack), "se2")
+    return _optimize(stack, None, edges, options)
+
+
 def optimize_se3(
-    poses: ArrayLike,
-    edges: Sequence[Edge],
-    *,
-    fixed: Iterable[int] = (0,),
-    kernel: str = "none",
-    kernel_width: float | None = None,
-    max_iterations: int = 100,
+    poses: ArrayLike, edges: Sequence[Edge], **options: Unpack[SolveOptions]
 ) -> PoseGraphResult:
     """Optimise an SE(3) pose graph with Levenberg–Marquardt.
 
     Args:
         poses: (N, 4, 4) initial ``world_from_node`` estimates.
         edges: relative-pose measurements; ``scale`` is ignored.
-        fixed: indices of nodes held exactly at their initial pose (the gauge).
-        kernel: robust kernel for edges with ``robust=True``: one of :data:`KERNELS`.
-        kernel_width: kernel width in whitened-residual-norm units (see the module docstring).
-        max_iterations: Levenberg–Marquardt iteration cap.
+        options: see :class:`SolveOptions`.
     """
     stack = _check_poses(poses)
-    _check_edges(edges, len(stack), sim3=False)
-    return _optimize(stack, None, edges, fixed, kernel, kernel_width, max_iterations)
+    _check_edges(edges, len(stack), "se3")
+    return _optimize(stack, None, edges, options)
 
 
 def optimize_sim3(
@@ -147,11 +195,8 @@ def optimize_sim3(
     scales: ArrayLike,
     edges: Sequence[Edge],
     *,
-    fixed: Iterable[int] = (0,),
-    kernel: str = "none",
-    kernel_width: float | None = None,
-    max_iterations: int = 100,
     scale_sigma: float = 1.0,
+    **options: Unpack[SolveOptions],
 ) -> PoseGraphResult:
     """Optimise a Sim(3) graph (monocular essential graph): poses and per-node scales.
 
@@ -159,25 +204,68 @@ def optimize_sim3(
         poses: (N, 4, 4) initial ``world_from_node`` rotations and translations.
         scales: (N,) initial node scales (usually ones), > 0.
         edges: relative similarities; loop edges carry ``scale != 1``, odometry usually 1.
-        fixed: nodes held exactly at their initial pose and scale.
-        kernel, kernel_width, max_iterations: as in :func:`optimize_se3`.
         scale_sigma: standard deviation of the log-scale residual, used for edges whose
             information is None or (6, 6) (block-diagonal extension); a (7, 7) information is
             taken as given. The default with ``information=None`` is ORB-SLAM's identity (7, 7).
+        options: see :class:`SolveOptions`; fixed nodes keep their scale too.
 
     Returns:
         the result with ``scales`` set.
     """
     stack = _check_poses(poses)
-    s = np.asarray(scales, dtype=np.float64)
-    if s.shape != (len(stack),):
-        raise ValueError(f"scales must have shape ({len(stack)},), got {s.shape}")
-    if not np.all(np.isfinite(s) & (s > 0)):
-        raise ValueError(f"scales must be finite and > 0, got {s[~(np.isfinite(s) & (s > 0))]}")
+    s = _check_scales(scales, len(stack))
     if not (math.isfinite(scale_sigma) and scale_sigma > 0):
         raise ValueError(f"scale_sigma must be a finite number > 0, got {scale_sigma!r}")
-    _check_edges(edges, len(stack), sim3=True)
-    return _optimize(stack, s, edges, fixed, kernel, kernel_width, max_iterations, scale_sigma)
+    _check_edges(edges, len(stack), "sim3")
+    return _optimize(stack, s, edges, options, scale_sigma)
+
+
+def optimize_gnc(
+    poses: ArrayLike,
+    edges: Sequence[Edge],
+    *,
+    inlier_chi2: float,
+    fixed: Iterable[int] = (0,),
+    max_iterations: int = 100,
+) -> PoseGraphResult:
+    """Find the wrong robust edges (loop closures) of an SE(2) or SE(3) graph by graduated
+    non-convexity (module docstring).
+
+    Args:
+        poses: (N, 3) SE(2) or (N, 4, 4) SE(3) starting poses.
+        edges: the measurements; those not ``robust`` are known inliers.
+        inlier_chi2: the χ² beyond which the truncated least squares loss drops an edge.
+        fixed: nodes held exactly at their starting pose (known inliers too).
+        max_iterations: Levenberg–Marquardt iteration cap of each inner solve.
+    """
+    import gtsam
+
+    stack = _check_nodes(poses)
+    _check_edges(edges, len(stack), "se2" if stack.ndim == 2 else "se3")
+    if not (math.isfinite(inlier_chi2) and inlier_chi2 > 0):
+        raise ValueError(f"inlier_chi2 must be a finite number > 0, got {inlier_chi2!r}")
+    graph, factors = _build_graph(stack, None, edges, fixed, "none", None, 1.0)
+    values = _values(stack, None)
+    base = _lm_params(max_iterations)
+    params = gtsam.GncLMParams(base)
+    params.setLossType(gtsam.GncLossType.TLS)
+    robust = np.fromiter((e.robust for e in edges), dtype=bool, count=len(edges))
+    # The fixed nodes' equality factors follow the edges' in the graph.
+    params.setKnownInliers(np.flatnonzero(~robust).tolist() + list(range(len(edges), graph.size())))
+    params.setAllowNonNoiseModelFactors(True)
+    optimizer = gtsam.GncLMOptimizer(graph, values, params)
+    # GTSAM's threshold is on a factor's error, 0.5 χ².
+    optimizer.setInlierCostThresholds(0.5 * inlier_chi2)
+    solution = optimizer.optimize()
+    weights = np.asarray(optimizer.getWeights(), dtype=np.float64).reshape(-1)[: len(edges)]
+    return PoseGraphResult(
+        poses=_poses_of(solution, stack, None)[0],
+        error_before=float(graph.error(values)),
+        error_after=float(graph.error(solution)),
+        iterations=0,
+        edge_chi2=_edge_chi2(edges, factors, solution, _dim(stack, None)),
+        outliers=np.flatnonzero(robust & (weights < 0.5)).astype(np.int64),
+    )
 
 
 def graph_error(
@@ -188,16 +276,23 @@ def graph_error(
     kernel: str = "none",
     kernel_width: float | None = None,
 ) -> float:
-    """GTSAM's ``graph.error`` of the graph at ``poses`` (and ``scales`` for Sim(3)).
+    """GTSAM's ``graph.error`` of the graph at ``poses`` ((N, 3) SE(2) or (N, 4, 4)) and
+    ``scales`` for Sim(3).
 
-    The same number :func:`optimize_se3` reports as ``error_before`` for these poses.
+    The same number the ``optimize_*`` functions report as ``error_before`` for these poses.
     """
-    stack = _check_poses(poses)
-    sim3 = scales is not None
-    _check_edges(edges, len(stack), sim3=sim3)
-    s = None if scales is None else np.asarray(scales, dtype=np.float64)
+    stack, s = _checked_graph(poses, edges, scales)
     graph, _ = _build_graph(stack, s, edges, (), kernel, kernel_width, 1.0)
     return float(graph.error(_values(stack, s)))
+
+
+def edge_chi2(poses: ArrayLike, edges: Sequence[Edge], *, scales: ArrayLike | None = None) -> F64:
+    """(E,) float64 whitened squared residual of each edge at ``poses`` ((N, 3) SE(2) or
+    (N, 4, 4)) and ``scales`` for Sim(3), without a kernel: what
+    :attr:`PoseGraphResult.edge_chi2` holds at the solution."""
+    stack, s = _checked_graph(poses, edges, scales)
+    _, factors = _build_graph(stack, s, edges, (), "none", None, 1.0)
+    return _edge_chi2(edges, factors, _values(stack, s), _dim(stack, s))
 
 
 def se3_edges_from_poses(
@@ -228,16 +323,15 @@ def se3_edges_from_poses(
 
 
 def from_g2o(graph: PoseGraph) -> tuple[F64, list[Edge], tuple[int, ...]]:
-    """A 3-D g2o graph as ``(poses (V,4,4), edges, fixed indices)`` for :func:`optimize_se3`.
+    """A g2o graph as ``(poses, edges, fixed indices)`` for :func:`optimize_se2` ((V, 3)
+    poses) or :func:`optimize_se3` ((V, 4, 4) poses).
 
-    Nodes are the graph's vertices in file order; edges name them by that index. g2o orders
-    the information translation first and measures rotation by the quaternion's vector part
-    (half the angle); both are converted to this module's ``[ω, v]`` order in radians, so the
-    χ² of every edge is unchanged. Consecutive-id edges become ``kind="odometry"``, the others
-    ``kind="loop"`` and ``robust=True``.
+    Nodes are the graph's vertices in file order; edges name them by that index. In 3-D, g2o
+    orders the information translation first and measures rotation by the quaternion's vector
+    part (half the angle); both are converted to this module's ``[ω, v]`` order in radians, so
+    the χ² of every edge is unchanged; 2-D information is used as it is. Consecutive-id edges
+    become ``kind="odometry"``, the others ``kind="loop"`` and ``robust=True``.
     """
-    if graph.dim != 3:
-        raise ValueError(f"{graph.path}: from_g2o needs a 3-D (SE(3)) graph, got {graph.dim}-D")
     ids = graph.vertex_ids
     if np.unique(ids).size != ids.size:
         raise ValueError(f"{graph.path}: vertex ids repeat; each VERTEX line needs its own id")
@@ -247,10 +341,13 @@ def from_g2o(graph: PoseGraph) -> tuple[F64, list[Edge], tuple[int, ...]]:
     if not len(ids) or np.any(ids[order][pos] != graph.edges):
         raise ValueError(f"{graph.path}: edges name vertex ids that have no VERTEX line")
     index = order[pos]
-    poses = _g2o_to_matrix(graph.poses)
-    rel = _g2o_to_matrix(graph.measurements)
-    p = _g2o_jacobian()
-    info = np.einsum("ji,ejk,kl->eil", p, graph.information, p)
+    if graph.dim == 2:
+        poses, rel, info = graph.poses, graph.measurements, graph.information
+    else:
+        poses = _g2o_to_matrix(graph.poses)
+        rel = _g2o_to_matrix(graph.measurements)
+        p = _g2o_jacobian()
+        info = np.einsum("ji,ejk,kl->eil", p, graph.information, p)
     loop = np.abs(graph.edges[:, 1] - graph.edges[:, 0]) != 1
     edges = [
         Edge(
@@ -281,7 +378,7 @@ def save_g2o(
     from slamcli.formats.g2o import write_g2o_se3
 
     stack = _check_poses(poses)
-    _check_edges(edges, len(stack), sim3=False)
+    _check_edges(edges, len(stack), "se3")
     pinv = np.linalg.inv(_g2o_jacobian())
     info = np.stack([_information(e, 6) for e in edges]) if edges else np.zeros((0, 6, 6))
     return write_g2o_se3(
@@ -320,6 +417,48 @@ def _check_poses(poses: ArrayLike) -> F64:
     return stack
 
 
+def _check_planar_poses(poses: ArrayLike) -> F64:
+    stack = np.asarray(poses, dtype=np.float64)
+    if stack.ndim != 2 or stack.shape[1] != 3 or len(stack) == 0:
+        raise ValueError(f"planar poses must have shape (N, 3) with N >= 1, got {stack.shape}")
+    if not np.isfinite(stack).all():
+        bad = np.flatnonzero(~np.isfinite(stack).all(axis=1))
+        raise ValueError(f"poses[{bad[0]}] is not finite ({bad.size} such pose(s))")
+    return stack
+
+
+def _check_nodes(poses: ArrayLike) -> F64:
+    """(N, 3) planar or (N, 4, 4) rigid poses, checked as their shape says."""
+    stack = np.asarray(poses, dtype=np.float64)
+    return _check_planar_poses(stack) if stack.ndim == 2 else _check_poses(stack)
+
+
+def _check_scales(scales: ArrayLike, n: int) -> F64:
+    s = np.asarray(scales, dtype=np.float64)
+    if s.shape != (n,):
+        raise ValueError(f"scales must have shape ({n},), got {s.shape}")
+    if not np.all(np.isfinite(s) & (s > 0)):
+        raise ValueError(f"scales must be finite and > 0, got {s[~(np.isfinite(s) & (s > 0))]}")
+    return s
+
+
+def _checked_graph(
+    poses: ArrayLike, edges: Sequence[Edge], scales: ArrayLike | None
+) -> tuple[F64, F64 | None]:
+    """Poses (SE(2), SE(3), or Sim(3) with ``scales``) and edges checked together."""
+    stack = _check_nodes(poses)
+    s = None if scales is None else _check_scales(scales, len(stack))
+    if stack.ndim == 2 and s is not None:
+        raise ValueError("scales apply to (N, 4, 4) Sim(3) poses, not to planar ones")
+    _check_edges(edges, len(stack), "se2" if stack.ndim == 2 else "se3" if s is None else "sim3")
+    return stack, s
+
+
+def _dim(poses: F64, scales: F64 | None) -> int:
+    """The residual's dimension: 3 for SE(2), 6 for SE(3), 7 for Sim(3)."""
+    return 3 if poses.ndim == 2 else 6 if scales is None else 7
+
+
 def _non_rigid(stack: F64) -> NDArray[np.intp]:
     r = stack[:, :3, :3]
     with np.errstate(invalid="ignore"):
@@ -333,20 +472,26 @@ def _non_rigid(stack: F64) -> NDArray[np.intp]:
     return np.flatnonzero(~ok)
 
 
-def _check_edges(edges: Sequence[Edge], n: int, *, sim3: bool) -> None:
-    sizes = (6, 7) if sim3 else (6,)
+def _check_edges(edges: Sequence[Edge], n: int, group: str) -> None:
+    """Edges of a ``group`` (``se2``, ``se3`` or ``sim3``) graph of ``n`` nodes."""
+    sizes = {"se2": (3,), "se3": (6,), "sim3": (6, 7)}[group]
     for k, e in enumerate(edges):
         if not (0 <= e.a < n and 0 <= e.b < n):
             raise ValueError(f"edges[{k}] joins nodes {e.a} and {e.b}, outside 0..{n - 1}")
         if e.a == e.b:
             raise ValueError(f"edges[{k}] joins node {e.a} to itself")
         m = np.asarray(e.a_from_b, dtype=np.float64)
-        if m.shape != (4, 4) or _non_rigid(m[None]).size:
+        if group == "se2":
+            if m.shape != (3,) or not np.isfinite(m).all():
+                raise ValueError(
+                    f"edges[{k}].a_from_b is not a finite (3,) x, y, yaw row: shape {m.shape}"
+                )
+        elif m.shape != (4, 4) or _non_rigid(m[None]).size:
             raise ValueError(
                 f"edges[{k}].a_from_b is not a rigid (SE(3)) (4, 4) transform: shape {m.shape}, "
                 "or a rotation block that is not orthonormal with determinant +1"
             )
-        if sim3 and not (math.isfinite(e.scale) and e.scale > 0):
+        if group == "sim3" and not (math.isfinite(e.scale) and e.scale > 0):
             raise ValueError(f"edges[{k}].scale must be finite and > 0, got {e.scale!r}")
         if e.information is not None:
             info = np.asarray(e.information, dtype=np.float64)
@@ -409,7 +554,9 @@ def _values(poses: F64, scales: F64 | None) -> Any:
 
     values = gtsam.Values()
     for i, t in enumerate(poses):
-        if scales is None:
+        if poses.ndim == 2:
+            values.insert(i, gtsam.Pose2(*t.tolist()))
+        elif scales is None:
             values.insert(i, gtsam.Pose3(t))
         else:
             values.insert(i, _similarity(t, float(scales[i])))
@@ -433,7 +580,7 @@ def _build_graph(
 ) -> tuple[Any, list[Any]]:
     import gtsam
 
-    dim = 6 if scales is None else 7
+    dim = _dim(poses, scales)
     make_kernel = robust_kernel(kernel, kernel_width, dim)
     graph = gtsam.NonlinearFactorGraph()
     factors = []
@@ -442,8 +589,11 @@ def _build_graph(
         if e.robust and make_kernel is not None:
             noise = gtsam.noiseModel.Robust.Create(make_kernel(), noise)
         a_from_b = np.asarray(e.a_from_b, dtype=np.float64)
-        if scales is None:
-            factor: Any = gtsam.BetweenFactorPose3(e.a, e.b, gtsam.Pose3(a_from_b), noise)
+        if dim == 3:
+            measured = gtsam.Pose2(*a_from_b.tolist())
+            factor: Any = gtsam.BetweenFactorPose2(e.a, e.b, measured, noise)
+        elif scales is None:
+            factor = gtsam.BetweenFactorPose3(e.a, e.b, gtsam.Pose3(a_from_b), noise)
         else:
             measured = _similarity(a_from_b, float(e.scale))
             factor = gtsam.BetweenFactorSimilarity3(e.a, e.b, measured, noise)
@@ -452,7 +602,9 @@ def _build_graph(
     for i in sorted(set(fixed)):
         if not 0 <= i < len(poses):
             raise ValueError(f"fixed node {i} is outside 0..{len(poses) - 1}")
-        if scales is None:
+        if dim == 3:
+            graph.add(gtsam.NonlinearEqualityPose2(i, gtsam.Pose2(*poses[i].tolist())))
+        elif scales is None:
             graph.add(gtsam.NonlinearEqualityPose3(i, gtsam.Pose3(poses[i])))
         else:
             graph.add(
@@ -465,38 +617,28 @@ def _optimize(
     poses: F64,
     scales: F64 | None,
     edges: Sequence[Edge],
-    fixed: Iterable[int],
-    kernel: str,
-    kernel_width: float | None,
-    max_iterations: int,
+    options: SolveOptions,
     scale_sigma: float = 1.0,
 ) -> PoseGraphResult:
     import gtsam
 
+    unknown = sorted(set(options) - set(_SOLVE_DEFAULTS))
+    if unknown:
+        raise TypeError(f"unknown solve option(s) {', '.join(unknown)}")
+    o = _SOLVE_DEFAULTS | options
+    max_iterations = o["max_iterations"]
     if max_iterations < 1:
         raise ValueError(f"max_iterations must be >= 1, got {max_iterations}")
-    graph, factors = _build_graph(poses, scales, edges, fixed, kernel, kernel_width, scale_sigma)
+    graph, factors = _build_graph(
+        poses, scales, edges, o["fixed"], o["kernel"], o["kernel_width"], scale_sigma
+    )
     initial = _values(poses, scales)
-    params = gtsam.LevenbergMarquardtParams()
-    params.setMaxIterations(int(max_iterations))
-    params.setVerbosityLM("SILENT")
-    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, params)
+    optimizer = gtsam.LevenbergMarquardtOptimizer(graph, initial, _lm_params(max_iterations))
     error_before = float(graph.error(initial))
     solution = optimizer.optimize()
-    dim = 6 if scales is None else 7
-    out = np.empty_like(poses)
-    out_scales = None if scales is None else np.empty_like(scales)
-    for i in range(len(poses)):
-        if out_scales is None:
-            out[i] = solution.atPose3(i).matrix()
-        else:
-            sim = solution.atSimilarity3(i)
-            out_scales[i] = sim.scale()
-            out[i] = make_pose(sim.rotation().matrix(), sim.scale() * sim.translation())
-    chi2 = np.empty(len(edges))
-    for k, (e, factor) in enumerate(zip(edges, factors, strict=True)):
-        r = factor.unwhitenedError(solution)
-        chi2[k] = r @ _information(e, dim, scale_sigma) @ r
+    dim = _dim(poses, scales)
+    out, out_scales = _poses_of(solution, poses, scales)
+    chi2 = _edge_chi2(edges, factors, solution, dim, scale_sigma)
     bound = chi2_quantile(OUTLIER_PROBABILITY, dim)
     robust = np.fromiter((e.robust for e in edges), dtype=bool, count=len(edges))
     return PoseGraphResult(
@@ -508,3 +650,41 @@ def _optimize(
         edge_chi2=chi2,
         outliers=np.flatnonzero(robust & (chi2 > bound)).astype(np.int64),
     )
+
+
+def _lm_params(max_iterations: int) -> Any:
+    """GTSAM's Levenberg–Marquardt defaults (COLAMD ordering), silent, with an iteration cap."""
+    import gtsam
+
+    params = gtsam.LevenbergMarquardtParams()
+    params.setMaxIterations(int(max_iterations))
+    params.setVerbosityLM("SILENT")
+    return params
+
+
+def _poses_of(solution: Any, poses: F64, scales: F64 | None) -> tuple[F64, F64 | None]:
+    """The nodes' poses (shaped like ``poses``) and scales (Sim(3)) in GTSAM ``solution``."""
+    out = np.empty_like(poses)
+    out_scales = None if scales is None else np.empty_like(scales)
+    for i in range(len(poses)):
+        if poses.ndim == 2:
+            p = solution.atPose2(i)
+            out[i] = [p.x(), p.y(), p.theta()]
+        elif out_scales is None:
+            out[i] = solution.atPose3(i).matrix()
+        else:
+            sim = solution.atSimilarity3(i)
+            out_scales[i] = sim.scale()
+            out[i] = make_pose(sim.rotation().matrix(), sim.scale() * sim.translation())
+    return out, out_scales
+
+
+def _edge_chi2(
+    edges: Sequence[Edge], factors: Sequence[Any], values: Any, dim: int, scale_sigma: float = 1.0
+) -> F64:
+    """(E,) each edge's unwhitened residual at ``values`` through its information, r' I r."""
+    chi2 = np.empty(len(edges))
+    for k, (e, factor) in enumerate(zip(edges, factors, strict=True)):
+        r = factor.unwhitenedError(values)
+        chi2[k] = r @ _information(e, dim, scale_sigma) @ r
+    return chi2
