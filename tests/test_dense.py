@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 import logging
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
+from dense_data import SYNTH_FRAMES, SYNTH_SIZE, render_synth_loop
 
 from slamcli.errors import PipelineError
 from slamcli.evaluation import evaluate
@@ -18,9 +21,6 @@ from slamcli.pipelines.dense import DenseConfig, DenseSlam
 from slamcli.types import RgbdFrame, SlamResult, Trajectory
 
 log = logging.getLogger(__name__)
-
-SYNTH_FRAMES = 90
-SYNTH_SIZE = (320, 240)
 
 
 def _run(path: Path, config: DenseConfig | None = None) -> tuple[SlamResult, Trajectory | None]:
@@ -34,18 +34,38 @@ def _run(path: Path, config: DenseConfig | None = None) -> tuple[SlamResult, Tra
 
 
 @pytest.fixture(scope="module")
-def synth_loop(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A 3 s closed loop (the camera ends one step before its start) with Kinect-like noise."""
-    from slamcli.synth.rgbd import render_rgbd_sequence
+def synth_loop(shared_artefact: Any) -> Path:
+    return shared_artefact("dense_synth_loop", render_synth_loop)
 
-    out = tmp_path_factory.mktemp("synth") / "loop"
-    render_rgbd_sequence(out, frames=SYNTH_FRAMES, size=SYNTH_SIZE, seed=3, noise=True)
-    return out
+
+@dataclass
+class _Processed:
+    """The default pipeline over the synthetic loop: its frames, the pipeline after them (its
+    keyframes as they were before ``finish``), and the result."""
+
+    frames: list[RgbdFrame]
+    pipe: DenseSlam
+    keyframes: list[tuple[bool, int]]
+    result: SlamResult
+    groundtruth: Trajectory | None
 
 
 @pytest.fixture(scope="module")
-def synth_result(synth_loop: Path) -> tuple[SlamResult, Trajectory | None]:
-    return _run(synth_loop)
+def processed(synth_loop: Path) -> _Processed:
+    pipe = DenseSlam()
+    with open_source(synth_loop) as source:
+        frames = list(source.frames(("rgbd",)))
+        groundtruth = source.groundtruth()
+    for frame in frames:
+        pipe.process(frame)
+    # (packed, colour pixels kept) of every keyframe before the final rebuild.
+    before = [(k.packed is not None, k.frame.rgb.size) for k in pipe.model.keyframes]
+    return _Processed(frames, pipe, before, pipe.finish(), groundtruth)
+
+
+@pytest.fixture(scope="module")
+def synth_result(processed: _Processed) -> tuple[SlamResult, Trajectory | None]:
+    return processed.result, processed.groundtruth
 
 
 def test_registered() -> None:
@@ -53,16 +73,26 @@ def test_registered() -> None:
     assert DenseSlam.consumes == ("rgbd",)
 
 
-def test_tum_rpy_excerpt(tum_excerpt: Path) -> None:
-    result, groundtruth = _run(tum_excerpt)
-    assert groundtruth is not None and result.trajectory is not None
-    assert len(result.trajectory) == 150
-    assert result.counts["frames_lost"] == 0
-    ate = evaluate(groundtruth, result.trajectory, align="se3").ate.rmse
-    log.info("TUM fr1/rpy excerpt: ATE %.4f m, %s", ate, result.metrics["ms_per_frame"])
+def test_tum_rpy_excerpt(tum_excerpt: Path, reference_run: Any) -> None:
+    """``slamcli run dense`` on the TUM excerpt (the reference run of the same command)."""
+    from slamcli.formats.mesh import read_mesh
+    from slamcli.formats.trajectory import read_trajectory
+
+    run = reference_run("dense_tum")
+    record = json.loads((run / "run.json").read_text())
+    counts = record["counts"]
+    with open_source(tum_excerpt) as source:
+        groundtruth = source.groundtruth()
+    trajectory = read_trajectory(run / "trajectory.tum")
+    assert groundtruth is not None
+    assert len(trajectory) == 150
+    assert counts["frames_lost"] == 0
+    ate = evaluate(groundtruth, trajectory, align="se3").ate.rmse
+    log.info("TUM fr1/rpy excerpt: ATE %.4f m, %s", ate, record["metrics"]["ms_per_frame"])
     assert ate <= 0.016
-    assert result.counts["frames_placed_by_front_end"] == 150
-    assert result.mesh is not None and len(result.mesh.faces) > 10_000
+    assert record["metrics"]["evaluation"]["ate"]["rmse"] <= 0.016
+    assert counts["frames_placed_by_front_end"] == 150
+    assert len(read_mesh(run / "mesh.ply").faces) > 10_000
 
 
 def test_synthetic_loop(synth_loop: Path, synth_result: tuple[SlamResult, Trajectory]) -> None:
@@ -229,19 +259,17 @@ def test_volume_budget_follows_the_scene(
     assert counts["voxel_blocks"] <= counts["voxel_block_budget"] <= 3 * counts["voxel_blocks"]
 
 
-def test_only_keyframes_keep_images_packed_and_a_rebuild_fuses_them(synth_loop: Path) -> None:
+def test_only_keyframes_keep_images_packed_and_a_rebuild_fuses_them(
+    processed: _Processed,
+) -> None:
     """Memory follows the keyframes: every keyframe but the newest keeps its images only
     packed (a lossless 16-bit depth PNG and a JPEG), they decode to the depth it had, and
     the rebuild after loop closure fuses exactly the keyframes."""
-    pipe = DenseSlam()
-    with open_source(synth_loop) as source:
-        frames = list(source.frames(("rgbd",)))
-    for frame in frames:
-        pipe.process(frame)
+    pipe, frames, before = processed.pipe, processed.frames, processed.keyframes
     kfs = pipe.model.keyframes
-    assert len(kfs) >= 5
-    assert all(k.packed is not None and k.frame.rgb.size == 0 for k in kfs[:-1])
-    assert kfs[-1].packed is None and kfs[-1].frame.rgb.size > 0
+    assert len(kfs) == len(before) >= 5
+    assert all(packed and pixels == 0 for packed, pixels in before[:-1])
+    assert not before[-1][0] and before[-1][1] > 0
     # Packed bytes stay far below the arrays they replace.
     packed = sum(len(d) + len(c) for k in kfs[:-1] for d, c in [k.packed])  # type: ignore[misc]
     raw = sum(f.rgb.nbytes + f.depth_m.nbytes for f in frames[: len(kfs) - 1])
@@ -251,7 +279,7 @@ def test_only_keyframes_keep_images_packed_and_a_rebuild_fuses_them(synth_loop: 
     original = pipe._prepare(frames[kfs[0].frame.index])
     assert np.abs(first.depth - original.depth).max() <= 1.0 / 5000
     assert first.small is not None and first.rgb.shape == original.rgb.shape
-    result = pipe.finish()
+    result = processed.result
     # The final poses (the visual front end's, after its last refinement) moved the
     # keyframes, so the volume was rebuilt from them.
     assert result.counts["frames_reintegrated"] == len(kfs)

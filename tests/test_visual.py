@@ -7,7 +7,7 @@ import json
 import logging
 import subprocess
 import sys
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +41,7 @@ def _run(source: Path, out: Path, **settings: Any) -> RunOutcome:
     return run_pipeline(source, "visual", out, config=VisualConfig(**settings))
 
 
-def _run_json(outcome: RunOutcome) -> dict[str, Any]:
+def _run_json(outcome: RunOutcome | _RunFolder) -> dict[str, Any]:
     return json.loads((outcome.run_dir / "run.json").read_text())
 
 
@@ -54,10 +54,19 @@ def _stamps_s(list_file: Path) -> np.ndarray:
     return np.array(rows, dtype=np.float64)
 
 
+@dataclass(frozen=True)
+class _RunFolder:
+    """A finished run's folder and its input, as a test reads them."""
+
+    run_dir: Path
+    input_path: Path
+
+
 @pytest.fixture(scope="module")
-def tum_run(tmp_path_factory: pytest.TempPathFactory) -> RunOutcome:
+def tum_run(reference_run: Any) -> _RunFolder:
+    """``slamcli run visual`` on the TUM excerpt (the reference run of the same command)."""
     folder = shared_path("tum", "rgbd_dataset_freiburg1_rpy_excerpt")
-    return _run(folder, tmp_path_factory.mktemp("visual") / "tum")
+    return _RunFolder(reference_run("visual_tum"), folder)
 
 
 @pytest.fixture(scope="module")
@@ -79,7 +88,7 @@ def mono_run(loop: Path, tmp_path_factory: pytest.TempPathFactory) -> RunOutcome
 # -- accuracy -----------------------------------------------------------------------------------
 
 
-def test_tum_excerpt_rgbd(tum_run: RunOutcome) -> None:
+def test_tum_excerpt_rgbd(tum_run: _RunFolder) -> None:
     info = _run_json(tum_run)
     metrics, counts = info["metrics"], info["counts"]
     ate = metrics["evaluation"]["ate"]["rmse"]
@@ -165,13 +174,16 @@ def test_lost_tracking_starts_a_new_map_merged_when_the_place_is_seen_again(
     assert _ate(outcome) < 0.05
 
 
-def test_runs_are_byte_identical_and_threads_do_not_change_results(tmp_path: Path) -> None:
+def test_runs_are_byte_identical_and_threads_do_not_change_results(
+    tmp_path: Path, reference_run: Any
+) -> None:
     names = ("trajectory.tum", "keyframes.tum", "points.ply")
 
     def products(folder: Path) -> dict[str, bytes]:
         return {n: (folder / n).read_bytes() for n in names}
 
-    # One run in a fresh process (another heap, another hash seed), two in this one.
+    # One run in a fresh process (another heap, another hash seed), one in a test process
+    # (the reference run of the same command), one here on one core.
     cli = subprocess.run(
         [sys.executable, "-m", "slamcli", "run", "visual", str(ROOM), "--out", str(tmp_path / "a")],
         capture_output=True,
@@ -181,7 +193,7 @@ def test_runs_are_byte_identical_and_threads_do_not_change_results(tmp_path: Pat
     assert cli.returncode == 0, cli.stderr
     first = products(tmp_path / "a")
     assert all(first.values())
-    assert products(_run(ROOM, tmp_path / "b").run_dir) == first
+    assert products(reference_run("visual_room")) == first
     single = _run(ROOM, tmp_path / "c", threads=1)
     assert _run_json(single)["config"]["visual"]["threads"] == 1
     assert products(single.run_dir) == first
@@ -192,7 +204,7 @@ def test_runs_are_byte_identical_and_threads_do_not_change_results(tmp_path: Pat
 
 @pytest.mark.parametrize("which", ["tum_run", "mono_run"])
 def test_run_json_records(which: str, request: pytest.FixtureRequest) -> None:
-    outcome: RunOutcome = request.getfixturevalue(which)
+    outcome: RunOutcome | _RunFolder = request.getfixturevalue(which)
     info = _run_json(outcome)
     counts, metrics = info["counts"], info["metrics"]
     by_state = {s: counts[f"frames_{s}"] for s in STATES}
