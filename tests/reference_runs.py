@@ -191,7 +191,8 @@ def run_once(name: str, root: Path) -> Path:
     process of the session asks for it (the others wait for it, then read it)."""
     run = run_shared(RUNS[name].arguments(), root)
     if run.exit_code != 0:
-        raise RuntimeError(f"reference run {name} exited {run.exit_code}:\n{run.output}")
+        raised = f" raising {run.exception}" if run.exception else ""
+        raise RuntimeError(f"reference run {name} exited {run.exit_code}{raised}:\n{run.output}")
     return run.out
 
 
