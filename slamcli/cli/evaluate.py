@@ -460,6 +460,6 @@ def _show(
     render.table(
         title,
         ["statistic", *columns],
-        [[k, *(f"{getattr(st, k):.6f}" for st in columns.values())] for k in STAT_KEYS],
+        [[k, *(f"{st.to_dict()[k]:.6f}" for st in columns.values())] for k in STAT_KEYS],
         right_align=list(columns),
     )

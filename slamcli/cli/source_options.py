@@ -13,7 +13,7 @@ from __future__ import annotations
 import functools
 import inspect
 from collections.abc import Callable, Collection
-from dataclasses import fields
+from dataclasses import asdict, fields
 from typing import Annotated, Any, TypeVar
 
 import typer
@@ -195,6 +195,7 @@ def source_options(without: Collection[str] = ()) -> Callable[[F], F]:
     is called with them collected into its ``source: SourceOptions`` parameter.
     """
     names = [f.name for f in fields(SourceOptions) if f.name not in without]
+    defaults = asdict(DEFAULTS)
     unknown = set(without) - {f.name for f in fields(SourceOptions)}
     if unknown:
         raise ValueError(f"not source options: {', '.join(sorted(unknown))}")
@@ -207,7 +208,7 @@ def source_options(without: Collection[str] = ()) -> Callable[[F], F]:
                 name,
                 inspect.Parameter.KEYWORD_ONLY,
                 annotation=_OPTIONS[name],
-                default=getattr(DEFAULTS, name),
+                default=defaults[name],
             )
             for name in names
         ]
