@@ -29,6 +29,7 @@ import platform
 import re
 import shutil
 import subprocess
+import traceback
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from importlib import metadata
@@ -191,7 +192,7 @@ def run_once(name: str, root: Path) -> Path:
     process of the session asks for it (the others wait for it, then read it)."""
     run = run_shared(RUNS[name].arguments(), root)
     if run.exit_code != 0:
-        raised = f" raising {run.exception}" if run.exception else ""
+        raised = f" raising {run.exception}\n{run.traceback}" if run.exception else ""
         raise RuntimeError(f"reference run {name} exited {run.exit_code}{raised}:\n{run.output}")
     return run.out
 
@@ -205,7 +206,7 @@ class SharedRun:
 
     ``out`` is its ``--out``; it is shared, so a test reads it and never changes it (copy it
     first, :func:`copy_out`). ``exception`` is the repr of an exception other than
-    ``SystemExit`` that the command raised, else None.
+    ``SystemExit`` that the command raised, else None, and ``traceback`` its traceback.
     """
 
     argv: tuple[str, ...]
@@ -215,6 +216,7 @@ class SharedRun:
     stdout: str
     stderr: str
     exception: str | None
+    traceback: str = ""
 
 
 def _exists(path: Path) -> bool:
@@ -300,7 +302,7 @@ def run_shared(
     Commands that differ only in ``--out`` and ``--force``, or in how they name the same
     input (see :func:`shared_arguments`), are one run. ``suffix`` is the ``--out`` name's
     suffix for commands whose ``--out`` is a file (``.npz``, ``.ply``), part of the key.
-    The command runs in-process through the CLI's entry point, in ``root``.
+    The command runs in-process through the CLI's entry point, in a folder of its own.
     """
     arguments = shared_arguments(argv, cwd)
     key = _key(arguments, suffix)
@@ -319,6 +321,10 @@ def run_shared(
             with contextlib.chdir(folder):
                 result = CliRunner().invoke(app, [*arguments, "--out", str(out)])
             exception = result.exception
+            raised = exception is not None and not isinstance(exception, SystemExit)
+            trace = ""
+            if raised and result.exc_info is not None:
+                trace = "".join(traceback.format_exception(*result.exc_info))
             record.write_text(
                 json.dumps(
                     {
@@ -327,9 +333,8 @@ def run_shared(
                         "output": result.output,
                         "stdout": result.stdout,
                         "stderr": result.stderr,
-                        "exception": None
-                        if exception is None or isinstance(exception, SystemExit)
-                        else repr(exception),
+                        "exception": repr(exception) if raised else None,
+                        "traceback": trace,
                     }
                 )
             )
@@ -342,6 +347,7 @@ def run_shared(
         stdout=done["stdout"],
         stderr=done["stderr"],
         exception=done["exception"],
+        traceback=done["traceback"],
     )
 
 
