@@ -19,8 +19,8 @@ from typer.testing import CliRunner
 from slamcli.cli.app import app
 from slamcli.errors import InputError
 from slamcli.synth.rgbd import build_rgbd_world
-from slamcli.vision import vocabulary as vocabulary_module
 from slamcli.vision.vocabulary import BowVector, KeyframeDatabase, Vocabulary
+from slamcli.vision.vocabulary import files as vocabulary_module
 
 FRAMES = 540  # one loop around the room
 KEYFRAMES = list(range(0, FRAMES, 27))
