@@ -19,7 +19,15 @@ from typer.testing import CliRunner
 from slamcli.cli.app import app
 from slamcli.errors import InputError
 from slamcli.synth.rgbd import build_rgbd_world
-from slamcli.vision.vocabulary import BowVector, KeyframeDatabase, Vocabulary
+from slamcli.vision.vocabulary import (
+    BowVector,
+    KeyframeDatabase,
+    Vocabulary,
+    default_vocabulary,
+    load_vocabulary,
+    save_vocabulary,
+    train_vocabulary,
+)
 from slamcli.vision.vocabulary import files as vocabulary_module
 
 FRAMES = 540  # one loop around the room
@@ -51,28 +59,28 @@ def descriptors(room: dict[int, np.ndarray]) -> dict[int, np.ndarray]:
 
 @pytest.fixture(scope="module")
 def small_vocab(descriptors: dict[int, np.ndarray]) -> Vocabulary:
-    return Vocabulary.train([descriptors[k] for k in KEYFRAMES[:6]], branching=8, levels=3)
+    return train_vocabulary([descriptors[k] for k in KEYFRAMES[:6]], branching=8, levels=3)
 
 
 def test_training_is_deterministic_to_the_byte(
     descriptors: dict[int, np.ndarray], tmp_path: Path
 ) -> None:
     images = [descriptors[k] for k in KEYFRAMES[:4]]
-    Vocabulary.train(images, branching=6, levels=3, seed=7).save(tmp_path / "a.npz")
-    Vocabulary.train(images, branching=6, levels=3, seed=7).save(tmp_path / "b.npz")
-    Vocabulary.train(images, branching=6, levels=3, seed=8).save(tmp_path / "c.npz")
+    save_vocabulary(train_vocabulary(images, branching=6, levels=3, seed=7), tmp_path / "a.npz")
+    save_vocabulary(train_vocabulary(images, branching=6, levels=3, seed=7), tmp_path / "b.npz")
+    save_vocabulary(train_vocabulary(images, branching=6, levels=3, seed=8), tmp_path / "c.npz")
     a, b, c = ((tmp_path / n).read_bytes() for n in ("a.npz", "b.npz", "c.npz"))
     assert a == b
     assert a != c  # the seed matters, so the equality above is not vacuous
     # A flat array with per-image counts is the same training input as the list.
-    flat = Vocabulary.train(
+    flat = train_vocabulary(
         np.concatenate(images),
         branching=6,
         levels=3,
         seed=7,
         per_image_counts=list(map(len, images)),
     )
-    flat.save(tmp_path / "d.npz")
+    save_vocabulary(flat, tmp_path / "d.npz")
     assert (tmp_path / "d.npz").read_bytes() == a
 
 
@@ -104,7 +112,7 @@ def test_words_bow_and_direct_index(
 
 
 def test_score_identical_neighbour_and_unrelated(descriptors: dict[int, np.ndarray]) -> None:
-    vocab = Vocabulary.default()
+    vocab = default_vocabulary()
     bows = {i: vocab.bow(d) for i, d in descriptors.items()}
     first = bows[KEYFRAMES[0]]
     assert Vocabulary.score(first, first) == pytest.approx(1.0, abs=1e-9)
@@ -119,7 +127,7 @@ def test_score_identical_neighbour_and_unrelated(descriptors: dict[int, np.ndarr
 def test_database_ranks_the_neighbouring_keyframe_first(
     descriptors: dict[int, np.ndarray],
 ) -> None:
-    vocab = Vocabulary.default()
+    vocab = default_vocabulary()
     db = KeyframeDatabase(vocab)
     for k in KEYFRAMES:
         db.add(k, vocab.bow(descriptors[k]))
@@ -174,12 +182,12 @@ def _bad_files(tmp_path: Path, good: Path) -> dict[str, Path]:
 
 
 def test_load_errors_are_one_line_input_errors(small_vocab: Vocabulary, tmp_path: Path) -> None:
-    good = small_vocab.save(tmp_path / "good.npz")
-    assert Vocabulary.load(good).n_words == small_vocab.n_words
+    good = save_vocabulary(small_vocab, tmp_path / "good.npz")
+    assert load_vocabulary(good).n_words == small_vocab.n_words
     runner = CliRunner()
     for kind, path in _bad_files(tmp_path, good).items():
         with pytest.raises(InputError) as info:
-            Vocabulary.load(path)
+            load_vocabulary(path)
         assert str(path) in info.value.msg, kind
         assert "\n" not in info.value.msg, kind
         if kind != "folder":
@@ -195,9 +203,9 @@ def test_default_vocabulary_is_small_and_loads_fast() -> None:
     assert path.stat().st_size <= 10 * 2**20
     vocabulary_module._default_vocabulary.cache_clear()
     started = time.process_time()
-    vocab = Vocabulary.default()
+    vocab = default_vocabulary()
     assert time.process_time() - started < 0.5
-    assert Vocabulary.default() is vocab  # cached
+    assert default_vocabulary() is vocab  # cached
     assert vocab.n_words >= 5000 and vocab.trained_images >= 100
     assert np.all(vocab.idf >= 0)
 
@@ -214,16 +222,16 @@ def test_vocab_train_cli_end_to_end(room: dict[int, np.ndarray], tmp_path: Path)
     result = runner.invoke(app, [*args, "--features", "500", "--every", "2"])
     assert result.exit_code == 0, result.output
     assert "images" in result.stdout and "words" in result.stdout
-    vocab = Vocabulary.load(out)
+    vocab = load_vocabulary(out)
     assert vocab.trained_images == 2 and vocab.levels == 2
     # The command trains exactly what the library trains on the same images.
-    expected = Vocabulary.train([_orb(room[k], 500) for k in KEYFRAMES[:4:2]], levels=2)
+    expected = train_vocabulary([_orb(room[k], 500) for k in KEYFRAMES[:4:2]], levels=2)
     assert np.array_equal(vocab.centroids, expected.centroids)
     assert np.array_equal(vocab.idf, expected.idf)
 
     again = runner.invoke(app, args)
     assert again.exit_code == 1 and "already exists" in again.stderr
-    assert Vocabulary.load(out).trained_images == 2  # untouched
+    assert load_vocabulary(out).trained_images == 2  # untouched
 
     missing = runner.invoke(
         app, ["vocab", "train", str(tmp_path / "nope"), "--out", str(tmp_path / "new.npz")]

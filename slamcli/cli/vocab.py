@@ -94,7 +94,12 @@ def train(
 ) -> None:
     """Train an ORB vocabulary tree on images and save it as one .npz."""
     from slamcli.atomic import check_writable_file
-    from slamcli.vision.vocabulary import MAX_NODES, Vocabulary, extract_training_descriptors
+    from slamcli.vision.vocabulary import (
+        MAX_NODES,
+        extract_training_descriptors,
+        save_vocabulary,
+        train_vocabulary,
+    )
 
     if branching < 2 or not 1 <= levels <= 8 or branching**levels > MAX_NODES:
         raise ConfigError(
@@ -128,10 +133,10 @@ def train(
             hint="give textured images; tiny or blank images have no corners",
         )
     with render.progress("clustering", levels) as progress:
-        vocab = Vocabulary.train(
+        vocab = train_vocabulary(
             images.descriptors, branching=branching, levels=levels, seed=seed, progress=progress
         )
-    vocab.save(out)
+    save_vocabulary(vocab, out)
     rows = {
         "words": f"{vocab.n_words} (branching {branching}, {levels} levels)",
         "images": len(images.names),
@@ -162,10 +167,10 @@ def info(
     ] = None,
 ) -> None:
     """Show what a vocabulary file holds and what it was trained on."""
-    from slamcli.vision.vocabulary import Vocabulary, default_vocabulary_path
+    from slamcli.vision.vocabulary import default_vocabulary_path, load_vocabulary
 
     path = default_vocabulary_path() if file is None else file
-    vocab = Vocabulary.load(path)
+    vocab = load_vocabulary(path)
     idf = vocab.idf
     render.key_values(
         "Vocabulary",

@@ -24,9 +24,13 @@ class Places:
     def db(self) -> Any:
         """The :class:`~slamcli.vision.vocabulary.KeyframeDatabase`."""
         if self._db is None:
-            from slamcli.vision.vocabulary import KeyframeDatabase, Vocabulary
+            from slamcli.vision.vocabulary import (
+                KeyframeDatabase,
+                default_vocabulary,
+                load_vocabulary,
+            )
 
-            voc = Vocabulary.default() if self._name == "default" else Vocabulary.load(self._name)
+            voc = default_vocabulary() if self._name == "default" else load_vocabulary(self._name)
             self._db = KeyframeDatabase(voc)
         return self._db
 

@@ -19,8 +19,9 @@ relocalisation query, with ORB-SLAM's candidate filter (keyframes sharing at lea
 largest number of common words).
 
 One module per job: :mod:`~slamcli.vision.vocabulary.tree` (the tree, words and vectors),
-:mod:`~slamcli.vision.vocabulary.training` (clustering),
-:mod:`~slamcli.vision.vocabulary.files` (saving and loading),
+:mod:`~slamcli.vision.vocabulary.training` (clustering: :func:`train_vocabulary`),
+:mod:`~slamcli.vision.vocabulary.files` (:func:`save_vocabulary`, :func:`load_vocabulary`,
+:func:`default_vocabulary`),
 :mod:`~slamcli.vision.vocabulary.database` (the keyframe database) and
 :mod:`~slamcli.vision.vocabulary.training_data` (descriptors of training images).
 """
@@ -28,7 +29,13 @@ One module per job: :mod:`~slamcli.vision.vocabulary.tree` (the tree, words and 
 from __future__ import annotations
 
 from slamcli.vision.vocabulary.database import KeyframeDatabase
-from slamcli.vision.vocabulary.files import default_vocabulary_path
+from slamcli.vision.vocabulary.files import (
+    default_vocabulary,
+    default_vocabulary_path,
+    load_vocabulary,
+    save_vocabulary,
+)
+from slamcli.vision.vocabulary.training import train_vocabulary
 from slamcli.vision.vocabulary.training_data import (
     IMAGE_SUFFIXES,
     INPUT_KINDS,
@@ -62,7 +69,11 @@ __all__ = [
     "TrainingImages",
     "Vocabulary",
     "check_descriptors",
+    "default_vocabulary",
     "default_vocabulary_path",
     "extract_training_descriptors",
     "hamming",
+    "load_vocabulary",
+    "save_vocabulary",
+    "train_vocabulary",
 ]

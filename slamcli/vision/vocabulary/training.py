@@ -22,6 +22,7 @@ from numpy.typing import NDArray
 
 from slamcli.vision.vocabulary.tree import (
     CHUNK,
+    DEFAULT_ITERATIONS,
     DESCRIPTOR_BYTES,
     I32,
     MAX_NODES,
@@ -132,18 +133,34 @@ def _flatten_training_input(
     return flat, np.repeat(np.arange(counts.size, dtype=np.int32), counts)
 
 
-def train_tree(
+def train_vocabulary(
     descriptors: U8 | Sequence[U8],
     *,
-    branching: int,
-    levels: int,
-    seed: int,
-    per_image_counts: Sequence[int] | NDArray[Any] | None,
-    iterations: int,
-    progress: ProgressFn | None,
+    branching: int = 10,
+    levels: int = 4,
+    seed: int = 0,
+    per_image_counts: Sequence[int] | NDArray[Any] | None = None,
+    iterations: int = DEFAULT_ITERATIONS,
+    progress: ProgressFn | None = None,
 ) -> Vocabulary:
-    """:meth:`Vocabulary.train <slamcli.vision.vocabulary.Vocabulary.train>`: the tree
-    clustered level by level, breadth first, then the words' idf weights."""
+    """Train a vocabulary tree.
+
+    Args:
+        descriptors: either a list with one (N_i, 32) uint8 array per training image, or one
+            (N, 32) uint8 array of all images' descriptors one image after the other, with
+            ``per_image_counts`` giving N_i. Which image each descriptor comes from sets the
+            idf weights; a single array without counts counts every descriptor as an image
+            of its own (idf by descriptor frequency).
+        branching: children per node (k >= 2).
+        levels: tree depth (L >= 1); up to k**L words.
+        seed: seeds the k-means++ seeding; same input and seed give the same tree.
+        per_image_counts: see ``descriptors``.
+        iterations: k-majority iterations per node after seeding.
+        progress: called as ``progress(done, total)`` with the levels finished.
+
+    Raises:
+        ValueError: bad shapes or parameters, or no descriptors at all.
+    """
 
     if branching < 2 or levels < 1 or iterations < 0:
         raise ValueError(

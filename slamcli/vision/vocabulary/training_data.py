@@ -82,7 +82,8 @@ def extract_training_descriptors(
     rgb_topic: str | None = None,
     progress: ProgressFn | None = None,
 ) -> TrainingImages:
-    """ORB descriptors of every ``every``-th image of each input, for :meth:`Vocabulary.train`.
+    """ORB descriptors of every ``every``-th image of each input, for
+    :func:`~slamcli.vision.vocabulary.train_vocabulary`.
 
     Args:
         inputs: image files, folders of PNG/JPEG images (searched recursively, in sorted path

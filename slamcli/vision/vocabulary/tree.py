@@ -8,9 +8,8 @@ files in :mod:`~slamcli.vision.vocabulary.files`.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Sequence
+from collections.abc import Callable
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -149,50 +148,6 @@ class Vocabulary:
             f"words={self.n_words}, trained_images={self.trained_images})"
         )
 
-    @classmethod
-    def train(
-        cls,
-        descriptors: U8 | Sequence[U8],
-        *,
-        branching: int = 10,
-        levels: int = 4,
-        seed: int = 0,
-        per_image_counts: Sequence[int] | NDArray[Any] | None = None,
-        iterations: int = DEFAULT_ITERATIONS,
-        progress: ProgressFn | None = None,
-    ) -> Vocabulary:
-        """Train a vocabulary tree.
-
-        Args:
-            descriptors: either a list with one (N_i, 32) uint8 array per training image, or one
-                (N, 32) uint8 array of all images' descriptors one image after the other, with
-                ``per_image_counts`` giving N_i. Which image each descriptor comes from sets the
-                idf weights; a single array without counts counts every descriptor as an image
-                of its own (idf by descriptor frequency).
-            branching: children per node (k >= 2).
-            levels: tree depth (L >= 1); up to k**L words.
-            seed: seeds the k-means++ seeding; same input and seed give the same tree.
-            per_image_counts: see ``descriptors``.
-            iterations: k-majority iterations per node after seeding.
-            progress: called as ``progress(done, total)`` with the levels finished.
-
-        Raises:
-            ValueError: bad shapes or parameters, or no descriptors at all.
-
-        The clustering is :func:`~slamcli.vision.vocabulary.training.train_tree`.
-        """
-        from slamcli.vision.vocabulary.training import train_tree
-
-        return train_tree(
-            descriptors,
-            branching=branching,
-            levels=levels,
-            seed=seed,
-            per_image_counts=per_image_counts,
-            iterations=iterations,
-            progress=progress,
-        )
-
     # -- lookups ----------------------------------------------------------------------------
 
     def _descend(self, descriptors: U8, stop_level: int) -> I32:
@@ -255,34 +210,3 @@ class Vocabulary:
         wa, wb = a.weights.astype(np.float64), b.weights.astype(np.float64)
         l1 = wa.sum() + wb.sum() + np.sum(np.abs(wa[ia] - wb[ib]) - wa[ia] - wb[ib])
         return float(np.clip(1.0 - 0.5 * l1, 0.0, 1.0))
-
-    # -- files ------------------------------------------------------------------------------
-
-    def save(self, path: str | Path) -> Path:
-        """Write the vocabulary as one compressed .npz, atomically; returns the path.
-
-        The zip entries carry a fixed timestamp, so the same vocabulary gives the same bytes
-        (``numpy.savez_compressed`` stamps the current time).
-        """
-        from slamcli.vision.vocabulary.files import save_vocabulary
-
-        return save_vocabulary(self, path)
-
-    @classmethod
-    def load(cls, path: str | Path) -> Vocabulary:
-        """Read a vocabulary written by :meth:`save`.
-
-        Raises:
-            InputError: the file is missing or unreadable, or is not a slamcli vocabulary
-                (another .npz, text, a truncated or damaged file); the message names the file.
-        """
-        from slamcli.vision.vocabulary.files import load_vocabulary
-
-        return load_vocabulary(path)
-
-    @classmethod
-    def default(cls) -> Vocabulary:
-        """The vocabulary shipped with slamcli (``slamcli/data/orb_vocabulary.npz``), cached."""
-        from slamcli.vision.vocabulary.files import default_vocabulary
-
-        return default_vocabulary()
