@@ -5,7 +5,8 @@
   against a dense full-state textbook EKF written here;
 - the first-estimates Jacobians against a dense first-estimates reference;
 - filter consistency (NEES of the robot pose) by Monte Carlo on a seeded landmark world;
-- nearest neighbour and JCBB on crafted cases, the joint distance against a dense computation.
+- nearest neighbour and JCBB on crafted cases, the joint distance against a dense computation;
+- the association and start settings the ekf and graph pipelines share.
 """
 
 from __future__ import annotations
@@ -14,7 +15,7 @@ import copy
 import functools
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 
 import numpy as np
 import pytest
@@ -24,6 +25,7 @@ from scipy import stats
 from slamcli.ekf.association import (
     UNMATCHED,
     Candidates,
+    agree_with_mean,
     jcbb,
     joint_distance,
     nearest_neighbour,
@@ -38,7 +40,8 @@ from slamcli.ekf.filter import (
 )
 from slamcli.geometry.chi2 import chi2_quantile
 from slamcli.geometry.planar import se3_to_planar
-from slamcli.pipelines.ekf import EkfConfig, EkfSlam
+from slamcli.pipelines.ekf import EkfConfig, EkfSlam, LandmarkAssociation, LandmarkNoise
+from slamcli.pipelines.graph import GraphConfig
 from slamcli.types import LandmarkFrame, OdometryFrame
 
 F64 = NDArray[np.float64]
@@ -860,3 +863,42 @@ def test_merging_two_copies_of_one_landmark_fuses_them() -> None:
     assert np.all(np.linalg.eigvalsh(p) > 0)
     # Fusing two estimates leaves the point more certain than either copy was.
     assert np.trace(ekf.landmark_cov(a)) < min(traces[a], traces[b])
+
+
+def test_agree_with_mean_uses_each_point_s_own_covariance() -> None:
+    points = np.array([[0.0, 0.0], [0.2, 0.0], [0.1, 0.1]])
+    tight = np.broadcast_to(np.eye(2) * 0.01**2, (3, 2, 2))
+    loose = np.broadcast_to(np.eye(2) * 0.1**2, (3, 2, 2))
+    gate = chi2_quantile(0.999, 2)
+    assert agree_with_mean(points, loose, gate)
+    assert not agree_with_mean(points, tight, gate)
+
+
+def test_ekf_and_graph_share_their_association_and_start_settings() -> None:
+    for cls in (EkfConfig, GraphConfig):
+        assert issubclass(cls, LandmarkAssociation) and issubclass(cls, LandmarkNoise)
+    shared = {f.name for f in fields(LandmarkAssociation)} | {f.name for f in fields(LandmarkNoise)}
+    assert {"gate_prob", "association", "promote_after_known", "initial_sigma_m"} <= shared
+    for name in shared:
+        assert getattr(EkfConfig(), name) == getattr(GraphConfig(), name), name
+    c = GraphConfig(gate_prob=0.99, new_landmark_prob=0.9999)
+    assert c.gate == pytest.approx(chi2_quantile(0.99, 2))
+    assert c.new_gate == pytest.approx(chi2_quantile(0.9999, 2))
+    assert c.joint_gate(3) == chi2_quantile(0.99, 6)
+
+
+@pytest.mark.parametrize(
+    ("with_id", "without_id", "used"),
+    [(5, 0, "known"), (0, 0, "known"), (0, 4, "jcbb"), (2, 4, "mixed")],
+)
+def test_association_used_follows_the_observations(
+    with_id: int, without_id: int, used: str
+) -> None:
+    assert EkfConfig(association="jcbb").association_used(with_id, without_id) == used
+
+
+def test_start_pose_is_the_source_s_only_with_start_groundtruth() -> None:
+    pose = np.array([1.0, 2.0, 0.3])
+    np.testing.assert_array_equal(EkfConfig().start_pose(pose), pose)
+    assert EkfConfig().start_pose(None) is None
+    assert GraphConfig(start="origin").start_pose(pose) is None

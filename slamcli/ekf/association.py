@@ -10,6 +10,9 @@ Euclidean distance mixing metres and radians, and accept a pairing only inside t
   pairings whose *stacked* innovation passes the joint χ² gate, ties broken by the smaller joint
   distance. It rejects pairings that are each plausible but together imply inconsistent robot
   poses, at a cost exponential in the worst case; the search stops after ``max_nodes``.
+
+Observations of a landmark with an id not yet mapped are first collected, and mapped once they
+agree with each other (:func:`agree_with_mean`).
 """
 
 from __future__ import annotations
@@ -49,6 +52,15 @@ class Candidates:
             return np.full(n, UNMATCHED, dtype=np.int64), np.full(n, np.inf)
         j = np.argmin(self.d2, axis=1)
         return j.astype(np.int64), self.d2[np.arange(len(j)), j]
+
+
+def agree_with_mean(points: F64, covs: F64, gate: float) -> bool:
+    """Whether every one of several positions of one landmark, (K, 2) ``points`` with (K, 2, 2)
+    covariances ``covs``, lies within the χ² ``gate`` of their mean (squared Mahalanobis
+    distance under its own covariance)."""
+    d = points - points.mean(axis=0)
+    d2 = np.einsum("ni,ni->n", d, np.linalg.solve(covs, d[:, :, None])[..., 0])
+    return not np.any(d2 > gate)
 
 
 def nearest_neighbour(cands: Candidates, gate: float) -> NDArray[np.int64]:

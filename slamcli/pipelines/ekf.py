@@ -35,7 +35,13 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.config import setting
-from slamcli.ekf.association import UNMATCHED, Candidates, jcbb, nearest_neighbour
+from slamcli.ekf.association import (
+    UNMATCHED,
+    Candidates,
+    agree_with_mean,
+    jcbb,
+    nearest_neighbour,
+)
 from slamcli.ekf.filter import LandmarkEkf, arc_step, inverse_observation, relative_motion
 from slamcli.ekf.smoother import Event, Observation, Row, Step, Velocity, smooth_path
 from slamcli.errors import PipelineError
@@ -57,6 +63,7 @@ class LandmarkNoise:
     Attributes:
         start: where the (first) robot starts: ``groundtruth`` (the log's ground-truth pose at its
             first frame, when it has one) or ``origin``.
+        initial_sigma_m, initial_sigma_deg: uncertainty of the starting pose.
         v_noise_speed, v_noise_turn: speed noise per m/s of speed and per rad/s of turn rate,
             as a density per √s (the error of commanded velocities grows with them).
         w_noise_speed, w_noise_turn: turn-rate noise per m/s and per rad/s, per √s.
@@ -71,6 +78,8 @@ class LandmarkNoise:
     """
 
     start: str = setting("groundtruth", choices=("groundtruth", "origin"))
+    initial_sigma_m: float = setting(0.01, gt=0.0, unit="m")
+    initial_sigma_deg: float = setting(1.0, gt=0.0, unit="deg")
     v_noise_speed: float = setting(0.15, min=0.0, unit="1/√s")
     v_noise_turn: float = setting(0.05, min=0.0, unit="m/rad/√s")
     w_noise_speed: float = setting(0.15, min=0.0, unit="rad/m/√s")
@@ -85,6 +94,13 @@ class LandmarkNoise:
     range_sigma: float = setting(0.15, gt=0.0, unit="m")
     range_sigma_rel: float = setting(0.01, min=0.0)
     bearing_sigma: float = setting(1.0, gt=0.0, unit="deg")
+
+    def start_pose(self, pose: F64 | None) -> F64 | None:
+        """Where the (first) robot starts, from the source's start pose (x, y, yaw) or None:
+        that pose with ``start = "groundtruth"``, else None (the origin)."""
+        if self.start == "groundtruth" and pose is not None:
+            return np.asarray(pose, dtype=np.float64)
+        return None
 
     def control_psd(self, v: float, w: float) -> NDArray[np.float64]:
         """(2,) noise densities of speed and turn rate (per √s), squared, while driving at
@@ -110,7 +126,77 @@ class LandmarkNoise:
 
 
 @dataclass(frozen=True)
-class EkfConfig(LandmarkNoise):
+class LandmarkAssociation:
+    """How the landmark pipelines (``ekf``, ``graph``) pair observations with landmarks and map
+    new ones.
+
+    Attributes:
+        gate_prob: χ² probability of the association gate (2 degrees of freedom).
+        new_landmark_prob: an observation without id starts a landmark only when it lies
+            outside this χ² probability of every landmark.
+        association: pairing of observations without ids: ``nn`` or ``jcbb``.
+        promote_after: pairings before a new landmark without id counts.
+        promote_after_known: agreeing observations before a new id becomes a landmark (more
+            than a burst of misread codes lasts).
+    """
+
+    gate_prob: float = setting(0.999, gt=0.5, lt=1.0)
+    new_landmark_prob: float = setting(0.99999, gt=0.5, lt=1.0)
+    association: str = setting("nn", choices=("nn", "jcbb"))
+    promote_after: int = setting(3, min=1)
+    promote_after_known: int = setting(6, min=1)
+
+    @property
+    def gate(self) -> float:
+        """The association gate on a pairing's squared Mahalanobis distance (2 dof)."""
+        return chi2_quantile(self.gate_prob, 2)
+
+    @property
+    def new_gate(self) -> float:
+        """The squared Mahalanobis distance to every landmark beyond which an observation
+        without id starts a landmark (2 dof)."""
+        return chi2_quantile(self.new_landmark_prob, 2)
+
+    def joint_gate(self, pairs: int) -> float:
+        """JCBB's gate on the joint distance of ``pairs`` pairings (2 dof each)."""
+        return _joint_gate(self.gate_prob, pairs)
+
+    def pair(
+        self, state: LandmarkEkf, zs: F64, r_covs: F64, cands: Candidates
+    ) -> NDArray[np.int64]:
+        """The landmark slot paired with each of a scan's observations without ids
+        (``UNMATCHED`` for none), by :attr:`association` (JCBB only for two or more).
+
+        Args:
+            state: the robot and landmarks (the filter, or a view of a graph's estimate).
+            zs, r_covs: (K, 2) range-bearing observations and their (K, 2, 2) covariances.
+            cands: their individual compatibility with every landmark.
+        """
+        if self.association == "jcbb" and len(zs) > 1:
+            return jcbb(state, zs, r_covs, cands, self.gate, self.joint_gate)
+        return nearest_neighbour(cands, self.gate)
+
+    def association_used(self, with_id: int, without_id: int) -> str:
+        """What a run used, from its counts of observations with and without ids: ``known``,
+        ``mixed`` or :attr:`association`."""
+        if with_id and without_id:
+            return "mixed"
+        return "known" if with_id or not without_id else self.association
+
+
+def usable_observations(frame: LandmarkFrame) -> tuple[NDArray[np.int64], F64]:
+    """A frame's observations the landmark pipelines use: (K,) int64 ids (-1 = none) and (K, 2)
+    float64 range (m, finite and > 0) and bearing (rad, wrapped to [-π, π)) rows."""
+    ids = np.asarray(frame.ids, dtype=np.int64)
+    zs = np.stack([frame.ranges_m, frame.bearings_rad], axis=1).astype(np.float64)
+    ok = np.isfinite(zs).all(axis=1) & (zs[:, 0] > 0)
+    ids, zs = ids[ok], zs[ok]
+    zs[:, 1] = wrap_angle(zs[:, 1])
+    return ids, zs
+
+
+@dataclass(frozen=True)
+class EkfConfig(LandmarkAssociation, LandmarkNoise):
     """Settings of :class:`EkfSlam`. Lengths in metres, angles in degrees, times in seconds.
 
     Attributes:
@@ -126,12 +212,6 @@ class EkfConfig(LandmarkNoise):
             filter and a backward pass over the recorded odometry and accepted observations);
             the filter's own path is kept as trajectory_filtered.tum.
         gate_prob: χ² probability of the association and update gate (2 degrees of freedom).
-        new_landmark_prob: an observation without id starts a landmark only when it lies
-            outside this χ² probability of every landmark.
-        association: pairing of observations without ids: ``nn`` or ``jcbb``.
-        promote_after: pairings before a new landmark without id counts.
-        promote_after_known: agreeing observations before a new id becomes a landmark (more
-            than a burst of misread codes lasts).
         reinit_after: a landmark whose observations fail the gate this many times in a row
             while other landmarks pass is placed anew from its latest observations (it was
             mapped from misread codes).
@@ -145,17 +225,11 @@ class EkfConfig(LandmarkNoise):
         lockout_after: consecutive gate rejections of known landmarks that trigger a recovery.
         recovery_sigma_m, recovery_sigma_deg: standard deviations added to the robot's position
             and heading in a recovery.
-        initial_sigma_m, initial_sigma_deg: uncertainty of the starting pose.
     """
 
-    gate_prob: float = setting(0.999, gt=0.5, lt=1.0)
     iterations: int = setting(3, min=1)
     smooth: bool = setting(True)
     jacobians: str = setting("first-estimates", choices=("first-estimates", "current"))
-    new_landmark_prob: float = setting(0.99999, gt=0.5, lt=1.0)
-    association: str = setting("nn", choices=("nn", "jcbb"))
-    promote_after: int = setting(3, min=1)
-    promote_after_known: int = setting(6, min=1)
     reinit_after: int = setting(6, min=1)
     prune_tentative_misses: int = setting(3, min=1)
     prune_misses: int = setting(10, min=1)
@@ -165,8 +239,6 @@ class EkfConfig(LandmarkNoise):
     lockout_after: int = setting(6, min=1)
     recovery_sigma_m: float = setting(0.1, min=0.0, unit="m")
     recovery_sigma_deg: float = setting(10.0, min=0.0, unit="deg")
-    initial_sigma_m: float = setting(0.01, gt=0.0, unit="m")
-    initial_sigma_deg: float = setting(1.0, gt=0.0, unit="deg")
 
 
 @dataclass
@@ -199,9 +271,8 @@ class EkfSlam(PipelineBase):
     def __init__(self, config: EkfConfig | None = None) -> None:
         self.config = config or EkfConfig()
         c = self.config
-        self._gate = chi2_quantile(c.gate_prob, 2)
-        self._new_gate = chi2_quantile(c.new_landmark_prob, 2)
-        self._joint_gates = functools.partial(_joint_gate, c.gate_prob)
+        self._gate = c.gate
+        self._new_gate = c.new_gate
         self._ekf: LandmarkEkf | None = None
         self._start: F64 | None = None
         self._t_ns: int | None = None
@@ -242,15 +313,9 @@ class EkfSlam(PipelineBase):
 
     # -- set-up -----------------------------------------------------------------------------
 
-    def seeds(self) -> dict[str, int]:
-        """Seeds of the random number generators a run uses, by generator: none, the filter
-        draws no random numbers."""
-        return {}
-
     def set_start(self, pose: F64 | None) -> None:
         """The starting pose (x, y, yaw), e.g. ground truth at the first frame; None = origin."""
-        if self.config.start == "groundtruth" and pose is not None:
-            self._start = np.asarray(pose, dtype=np.float64)
+        self._start = self.config.start_pose(pose)
 
     def _filter(self) -> LandmarkEkf:
         if self._ekf is None:
@@ -336,11 +401,7 @@ class EkfSlam(PipelineBase):
     def _observations(self, frame: LandmarkFrame) -> None:
         self._advance(frame.stamp_ns)
         ekf = self._filter()
-        ids = np.asarray(frame.ids, dtype=np.int64)
-        zs = np.stack([frame.ranges_m, frame.bearings_rad], axis=1).astype(np.float64)
-        ok = np.isfinite(zs).all(axis=1) & (zs[:, 0] > 0)
-        ids, zs = ids[ok], zs[ok]
-        zs[:, 1] = wrap_angle(zs[:, 1])
+        ids, zs = usable_observations(frame)
         self.counts["observations"] += len(zs)
         if len(zs):
             self._max_range = max(self._max_range, float(zs[:, 0].max()))
@@ -426,14 +487,7 @@ class EkfSlam(PipelineBase):
         need = self.config.promote_after_known
         pts = np.array(pend.points[-need:])
         covs = np.array(pend.covs[-need:])
-        if len(pts) < need:
-            return
-        # The latest observations must agree with their mean.
-        mean = pts.mean(axis=0)
-        d2 = np.einsum(
-            "ni,ni->n", pts - mean, np.linalg.solve(covs, (pts - mean)[:, :, None])[..., 0]
-        )
-        if np.any(d2 > self._gate):
+        if len(pts) < need or not agree_with_mean(pts, covs, self._gate):
             return
         if len(self._tracks) >= self.config.max_landmarks:
             self.counts["capped"] += 1
@@ -451,11 +505,7 @@ class EkfSlam(PipelineBase):
         pend = self._pending.pop(track.ident, _Pending())
         pts = np.array(pend.points[-self.config.reinit_after :])
         covs = np.array(pend.covs[-self.config.reinit_after :])
-        mean = pts.mean(axis=0)
-        d = pts - mean
-        if np.any(
-            np.einsum("ni,ni->n", d, np.linalg.solve(covs, d[:, :, None])[..., 0]) > self._gate
-        ):
+        if not agree_with_mean(pts, covs, self._gate):
             return
         self._remove(slot, pruned=False)
         new = ekf.add_landmark(z, r_cov)
@@ -486,10 +536,7 @@ class EkfSlam(PipelineBase):
     def _unknown(self, zs: F64, r_covs: F64, stamp_ns: int) -> set[int]:
         ekf = self._filter()
         cands = Candidates.of(ekf, zs, r_covs)
-        if self.config.association == "jcbb" and len(zs) > 1:
-            pairing = jcbb(ekf, zs, r_covs, cands, self._gate, self._joint_gates)
-        else:
-            pairing = nearest_neighbour(cands, self._gate)
+        pairing = self.config.pair(ekf, zs, r_covs, cands)
         _, nearest = cands.best()
         seen: set[int] = set()
         # Updates first (all innovations were computed before any of them), then new landmarks.
@@ -628,11 +675,7 @@ class EkfSlam(PipelineBase):
         counts["landmarks"] = len(keep)
         counts["landmarks_tentative"] = len(self._tracks) - len(keep)
         metrics: dict[str, Any] = {
-            "association": (
-                "mixed"
-                if self._with_id and self._without_id
-                else ("known" if self._with_id or not self._without_id else c.association)
-            )
+            "association": c.association_used(self._with_id, self._without_id)
         }
         if len(nis):
             lo, hi = chi2_quantile(0.025, 2), chi2_quantile(0.975, 2)

@@ -39,11 +39,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.config import setting
-from slamcli.ekf.association import UNMATCHED, Candidates, jcbb, nearest_neighbour
+from slamcli.ekf.association import UNMATCHED, Candidates, agree_with_mean
 from slamcli.ekf.filter import inverse_observation, observe_jacobians, relative_motion
 from slamcli.errors import PipelineError
 from slamcli.geometry.align import rigid_fit_2d
-from slamcli.geometry.chi2 import chi2_quantile
 from slamcli.geometry.planar import (
     between_planar,
     compose_planar,
@@ -60,7 +59,7 @@ from slamcli.graphs.landmark_graph import (
     pose_key,
 )
 from slamcli.pipelines import PipelineBase
-from slamcli.pipelines.ekf import LandmarkNoise
+from slamcli.pipelines.ekf import LandmarkAssociation, LandmarkNoise, usable_observations
 from slamcli.types import LandmarkFrame, LandmarkMap, OdometryFrame, SlamResult, Trajectory
 
 log = logging.getLogger(__name__)
@@ -69,7 +68,7 @@ F64 = NDArray[np.float64]
 
 
 @dataclass(frozen=True)
-class GraphConfig(LandmarkNoise):
+class GraphConfig(LandmarkAssociation, LandmarkNoise):
     """Settings of :class:`GraphSlam`. Lengths in metres, angles in degrees, times in seconds.
 
     Attributes:
@@ -81,12 +80,7 @@ class GraphConfig(LandmarkNoise):
         odometry_floor_m, odometry_floor_deg: standard deviations added to every odometry
             factor, so that none is singular.
         robust_width: Huber kernel width on the whitened range-bearing residual (0 = none).
-        gate_prob: χ² probability of the association gate (2 degrees of freedom).
-        new_landmark_prob: an observation without id starts a landmark only outside this χ²
-            probability of every landmark.
-        association: pairing of observations without ids: ``nn`` or ``jcbb``.
         promote_after: observations a landmark without id needs to be written out.
-        promote_after_known: agreeing observations before a new id becomes a landmark.
         pose_sigma_m, pose_sigma_deg: uncertainty of a keypose's estimate after observations,
             the floor of the association's predicted pose uncertainty.
         landmark_sigma_m: uncertainty of a landmark's estimate, for the association.
@@ -102,16 +96,9 @@ class GraphConfig(LandmarkNoise):
     odometry_floor_m: float = setting(0.001, gt=0.0, unit="m")
     odometry_floor_deg: float = setting(0.05, gt=0.0, unit="deg")
     robust_width: float = setting(2.0, min=0.0)
-    gate_prob: float = setting(0.999, gt=0.5, lt=1.0)
-    new_landmark_prob: float = setting(0.99999, gt=0.5, lt=1.0)
-    association: str = setting("nn", choices=("nn", "jcbb"))
-    promote_after: int = setting(3, min=1)
-    promote_after_known: int = setting(6, min=1)
     pose_sigma_m: float = setting(0.05, gt=0.0, unit="m")
     pose_sigma_deg: float = setting(2.0, gt=0.0, unit="deg")
     landmark_sigma_m: float = setting(0.1, gt=0.0, unit="m")
-    initial_sigma_m: float = setting(0.01, gt=0.0, unit="m")
-    initial_sigma_deg: float = setting(1.0, gt=0.0, unit="deg")
     align_min_landmarks: int = setting(3, min=2)
     align_max_rms: float = setting(0.5, gt=0.0, unit="m")
 
@@ -218,8 +205,8 @@ class GraphSlam(PipelineBase):
     def __init__(self, config: GraphConfig | None = None) -> None:
         self.config = config or GraphConfig()
         c = self.config
-        self._gate = chi2_quantile(c.gate_prob, 2)
-        self._new_gate = chi2_quantile(c.new_landmark_prob, 2)
+        self._gate = c.gate
+        self._new_gate = c.new_gate
         self._backend: Backend | None = None
         self._start: F64 | None = None
         self._robots: dict[int, _Robot] = {}
@@ -237,14 +224,9 @@ class GraphSlam(PipelineBase):
 
     # -- set-up -----------------------------------------------------------------------------
 
-    def seeds(self) -> dict[str, int]:
-        """Seeds of the random number generators a run uses: none, nothing is drawn."""
-        return {}
-
     def set_start(self, pose: F64 | None) -> None:
         """The first robot's starting pose (x, y, yaw), e.g. ground truth; None = origin."""
-        if self.config.start == "groundtruth" and pose is not None:
-            self._start = np.asarray(pose, dtype=np.float64)
+        self._start = self.config.start_pose(pose)
 
     def _graph(self) -> Backend:
         if self._backend is None:
@@ -336,11 +318,7 @@ class GraphSlam(PipelineBase):
         return len(robot.keys) - 1
 
     def _observations(self, robot: _Robot, frame: LandmarkFrame) -> None:
-        ids = np.asarray(frame.ids, dtype=np.int64)
-        zs = np.stack([frame.ranges_m, frame.bearings_rad], axis=1).astype(np.float64)
-        ok = np.isfinite(zs).all(axis=1) & (zs[:, 0] > 0)
-        ids, zs = ids[ok], zs[ok]
-        zs[:, 1] = wrap_angle(zs[:, 1])
+        ids, zs = usable_observations(frame)
         self.counts["observations"] += len(zs)
         if not len(zs):
             return
@@ -478,14 +456,10 @@ class GraphSlam(PipelineBase):
         if len(pend.points) < need:
             return
         pts, covs = np.array(pend.points[-need:]), np.array(pend.covs[-need:])
-        mean = pts.mean(axis=0)
-        d = pts - mean
-        if np.any(
-            np.einsum("ni,ni->n", d, np.linalg.solve(covs, d[:, :, None])[..., 0]) > self._gate
-        ):
+        if not agree_with_mean(pts, covs, self._gate):
             return
         lk = landmark_key(ident)
-        g.add_point(lk, mean)
+        g.add_point(lk, pts.mean(axis=0))
         self._marks[ident] = _Mark(ident, known=True, hits=0)
         for pk, _, zz, rc in pend.obs[-need:]:
             g.landmark(pk, lk, zz, rc)
@@ -503,14 +477,7 @@ class GraphSlam(PipelineBase):
         )
         view = _View(pose, pose_cov, points, c.landmark_sigma_m**2)
         cands = Candidates.of(cast(Any, view), zs, r_covs)
-        if c.association == "jcbb" and len(zs) > 1:
-
-            def joint_gate(pairs: int) -> float:
-                return chi2_quantile(c.gate_prob, 2 * pairs)
-
-            pairing = jcbb(cast(Any, view), zs, r_covs, cands, self._gate, joint_gate)
-        else:
-            pairing = nearest_neighbour(cands, self._gate)
+        pairing = c.pair(cast(Any, view), zs, r_covs, cands)
         _, nearest = cands.best()
         accepted = 0
         for i in range(len(zs)):
@@ -633,13 +600,8 @@ class GraphSlam(PipelineBase):
         counts["robots"] = len(self._robots)
         for kind, n in g.factor_counts.items():
             counts[f"factors_{kind}"] = n
-        association = (
-            "mixed"
-            if self._with_id and self._without_id
-            else ("known" if self._with_id or not self._without_id else self.config.association)
-        )
         metrics: dict[str, Any] = {
-            "association": association,
+            "association": self.config.association_used(self._with_id, self._without_id),
             "solver": self.config.solver,
             "graph_error": g.error(),
         }
