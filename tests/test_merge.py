@@ -198,6 +198,11 @@ def test_help_example_runs(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> N
     ev = record["metrics"]["evaluation"]
     assert set(ev["per_run"]) == {"robot1", "robot2", "robot3"}
     assert ev["all"]["rmse"] < 0.15
+    assert {"rmse", "mean", "median", "max"} <= ev["all"].keys()
+    for run in ev["per_run"].values():
+        assert run["matched"] > 100 and run["ate"]["rmse"] < run["ate_unaligned"]["rmse"]
+    assert ev["mean_of_rmse_m"] == np.mean([v["ate"]["rmse"] for v in ev["per_run"].values()])
+    assert ev["alignment"].keys() == {"x_m", "y_m", "yaw_deg"}
     for name in ("landmarks.csv", "report.png", "trajectory_robot3.tum"):
         assert Path("runs/merged", name).is_file()
 

@@ -638,18 +638,20 @@ def evaluate_merged(result: MergeResult) -> dict[str, Any]:
     """
     from slamcli.planar_eval import evaluate_common_frame
 
+    runs = {result.runs[r].label: result.runs[r] for r in result.trajectories}
     truths = {}
-    for r in result.trajectories:
-        gt = _groundtruth(result.runs[r])
+    for label, run in runs.items():
+        gt = _groundtruth(run)
         if gt is not None:
-            truths[r] = gt
-    common = evaluate_common_frame(truths, result.trajectories)
+            truths[label] = gt
+    estimates = {result.runs[r].label: traj for r, traj in result.trajectories.items()}
+    common = evaluate_common_frame(truths, estimates)
     if common is None:
         return {}
     per_run: dict[str, Any] = {}
-    for r, robot in common.robots.items():
-        own = result.runs[r].record.record.get("metrics", {}).get("evaluation", {})
-        per_run[result.runs[r].label] = {
+    for label, robot in common.robots.items():
+        own = runs[label].record.record.get("metrics", {}).get("evaluation", {})
+        per_run[label] = {
             "matched": robot.matched,
             "ate": robot.ate.to_dict(),
             "ate_unaligned": robot.own.ate_unaligned.to_dict(),
