@@ -28,11 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.ekf.filter import arc_motion, relative_motion
-
-# Still imported from here by slamcli.run's several-robot evaluation.
-from slamcli.geometry.align import rigid_fit_2d as rigid_fit_2d
-from slamcli.geometry.planar import between_planar, wrap_angle
-from slamcli.geometry.planar import compose_planar as compose
+from slamcli.geometry.planar import between_planar, compose_planar, wrap_angle
 
 F64 = NDArray[np.float64]
 
@@ -113,11 +109,11 @@ def blend_dense(
     Returns:
         (N, 3) float64 planar poses.
     """
-    forward = compose(key_poses[key_index], rel)
+    forward = compose_planar(key_poses[key_index], rel)
     nxt = np.minimum(key_index + 1, len(key_stamps) - 1)
     has_next = nxt > key_index
     back_rel = between_planar(key_rel[nxt], rel)
-    backward = compose(key_poses[nxt], back_rel)
+    backward = compose_planar(key_poses[nxt], back_rel)
     t0 = key_stamps[key_index].astype(np.float64)
     t1 = key_stamps[nxt].astype(np.float64)
     span = np.where(has_next, t1 - t0, 1.0)
