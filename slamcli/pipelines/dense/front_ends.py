@@ -104,8 +104,9 @@ def moved_enough(keyframes: list[Keyframe], corrected: F64, config: DenseConfig)
     )
 
 
-class VisualFrontEnd:
-    """``front_end=visual`` (see the module's description)."""
+class _FrontEndParts:
+    """What both front ends work with: the settings, the rig, the model, the model tracker,
+    and the counts and stage times."""
 
     def __init__(
         self, config: DenseConfig, rig: Rig, model: Model, tracker: ModelTracker, stats: Stats
@@ -117,6 +118,15 @@ class VisualFrontEnd:
             tracker,
             stats,
         )
+
+
+class VisualFrontEnd(_FrontEndParts):
+    """``front_end=visual`` (see the module's description)."""
+
+    def __init__(
+        self, config: DenseConfig, rig: Rig, model: Model, tracker: ModelTracker, stats: Stats
+    ) -> None:
+        super().__init__(config, rig, model, tracker, stats)
         self.visual = VisualSlam(VisualConfig(threads=config.threads, seed=config.seed))
         # The volume-from-map transform of each of the visual tracker's maps, and each pose's
         # tracker pose and map (None where the model tracker alone placed the frame).
@@ -281,19 +291,13 @@ class Loop:
     record: dict[str, Any] = field(default_factory=dict)
 
 
-class FramesFrontEnd:
+class FramesFrontEnd(_FrontEndParts):
     """``front_end=frames`` (see the module's description)."""
 
     def __init__(
         self, config: DenseConfig, rig: Rig, model: Model, tracker: ModelTracker, stats: Stats
     ) -> None:
-        self.config, self.rig, self.model, self.tracker, self.stats = (
-            config,
-            rig,
-            model,
-            tracker,
-            stats,
-        )
+        super().__init__(config, rig, model, tracker, stats)
         self._loops: list[Loop] = []
         self._records: list[dict[str, Any]] = []
 

@@ -7,37 +7,25 @@ from typing import Any
 
 import numpy as np
 
-from slamcli.pipelines.timing import Stats
-from slamcli.pipelines.visual.atlas import Atlas, Keyframe, SparseMap
-from slamcli.pipelines.visual.config import VisualConfig
-from slamcli.pipelines.visual.frames import Frame, Rig
+from slamcli.pipelines.visual.atlas import Keyframe
+from slamcli.pipelines.visual.frames import Frame
 from slamcli.pipelines.visual.local_mapping import LocalMapping
+from slamcli.pipelines.visual.parts import Part, Shared
 from slamcli.vision.matching import TH_HIGH, match_ratio
 from slamcli.vision.two_view import two_view_geometry
 
 
-class MonoInitializer:
+class MonoInitializer(Part):
     """Two-view initialisation: the first frame with enough features is the reference; a later
     one with enough matches and parallax to it gives the map's first two keyframes and points
     (homography or fundamental matrix, triangulation, a bundle adjustment, the scale set so the
     reference's median depth is 1). ``info`` describes the initialisation once it happened."""
 
-    def __init__(
-        self, config: VisualConfig, rig: Rig, atlas: Atlas, mapper: LocalMapping, stats: Stats
-    ) -> None:
-        self.config, self.rig, self.atlas, self.mapper, self.stats = (
-            config,
-            rig,
-            atlas,
-            mapper,
-            stats,
-        )
+    def __init__(self, shared: Shared, mapper: LocalMapping) -> None:
+        super().__init__(shared)
+        self.mapper = mapper
         self._ref: Frame | None = None
         self.info: dict[str, Any] | None = None
-
-    @property
-    def map(self) -> SparseMap:
-        return self.atlas.map
 
     def reset(self) -> None:
         """Start again from the next frame (a new map is started)."""

@@ -14,12 +14,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.geometry import inverse
-from slamcli.pipelines.timing import Stats
-from slamcli.pipelines.visual.atlas import Atlas, Keyframe, SparseMap
+from slamcli.pipelines.visual.atlas import Keyframe
 from slamcli.pipelines.visual.bundle import BundleAdjuster
-from slamcli.pipelines.visual.config import VisualConfig
-from slamcli.pipelines.visual.frames import Frame, Rig
-from slamcli.pipelines.visual.places import Places
+from slamcli.pipelines.visual.frames import Frame
+from slamcli.pipelines.visual.parts import Part, Shared
 from slamcli.pipelines.visual.search import in_view, project_match
 from slamcli.vision.matching import TH_LOW, match_ratio
 from slamcli.vision.two_view import triangulate_checked
@@ -29,25 +27,13 @@ I64 = NDArray[np.int64]
 _CHI2_2D = 5.991
 
 
-class LocalMapping:
+class LocalMapping(Part):
     """Keyframes into the map: :meth:`start_map` for a new RGB-D map's first keyframe,
     :meth:`insert_keyframe` for the keyframes that follow."""
 
-    def __init__(
-        self,
-        config: VisualConfig,
-        rig: Rig,
-        atlas: Atlas,
-        places: Places,
-        ba: BundleAdjuster,
-        stats: Stats,
-    ) -> None:
-        self.config, self.rig, self.atlas = config, rig, atlas
-        self.places, self.ba, self.stats = places, ba, stats
-
-    @property
-    def map(self) -> SparseMap:
-        return self.atlas.map
+    def __init__(self, shared: Shared, ba: BundleAdjuster) -> None:
+        super().__init__(shared)
+        self.ba = ba
 
     def start_map(self, cur: Frame) -> Keyframe | None:
         """The first keyframe of a new RGB-D map, made from ``cur`` at the origin with points

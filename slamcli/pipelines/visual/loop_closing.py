@@ -18,13 +18,10 @@ from numpy.typing import NDArray
 
 from slamcli.errors import InputError
 from slamcli.geometry import inverse
-from slamcli.pipelines.timing import Stats
-from slamcli.pipelines.visual.atlas import Atlas, Keyframe, SparseMap
+from slamcli.pipelines.visual.atlas import Keyframe, SparseMap
 from slamcli.pipelines.visual.bundle import BundleAdjuster
-from slamcli.pipelines.visual.config import VisualConfig
-from slamcli.pipelines.visual.frames import Rig
 from slamcli.pipelines.visual.local_mapping import LocalMapping
-from slamcli.pipelines.visual.places import Places
+from slamcli.pipelines.visual.parts import Part, Shared
 from slamcli.pipelines.visual.search import in_view, project_match
 from slamcli.types import PinholeCamera
 from slamcli.vision.matching import TH_HIGH, match_ratio
@@ -34,29 +31,16 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 
-class LoopClosing:
+class LoopClosing(Part):
     """Loops and merges found from each new keyframe (:meth:`detect`); ``records`` holds one
     record per verified candidate (type, keyframes, frames, score, inliers, accepted, reason,
     and the correction it made)."""
 
-    def __init__(
-        self,
-        config: VisualConfig,
-        rig: Rig,
-        atlas: Atlas,
-        places: Places,
-        mapper: LocalMapping,
-        ba: BundleAdjuster,
-        stats: Stats,
-    ) -> None:
-        self.config, self.rig, self.atlas, self.places = config, rig, atlas, places
-        self.mapper, self.ba, self.stats = mapper, ba, stats
+    def __init__(self, shared: Shared, mapper: LocalMapping, ba: BundleAdjuster) -> None:
+        super().__init__(shared)
+        self.mapper, self.ba = mapper, ba
         self.records: list[dict[str, Any]] = []
         self._consistent: list[tuple[set[int], int]] = []
-
-    @property
-    def map(self) -> SparseMap:
-        return self.atlas.map
 
     def detect(self, kf: Keyframe) -> None:
         """Place recognition for a new keyframe; verified candidates close a loop (same map)

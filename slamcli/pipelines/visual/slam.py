@@ -42,6 +42,7 @@ from slamcli.pipelines.visual.frames import Frame, Rig, refine_poses
 from slamcli.pipelines.visual.initializer import MonoInitializer
 from slamcli.pipelines.visual.local_mapping import LocalMapping
 from slamcli.pipelines.visual.loop_closing import LoopClosing, essential_graph
+from slamcli.pipelines.visual.parts import Shared
 from slamcli.pipelines.visual.places import Places
 from slamcli.pipelines.visual.tracking import Tracking
 from slamcli.types import ImageFrame, RgbdFrame, SlamResult, Trajectory
@@ -72,13 +73,12 @@ class VisualSlam(PipelineBase):
         # second process with threads=2, at points fixed by the frame sequence.
         self._side = SideProcess(parallel=cfg.threads == 2)
         self.places = Places(cfg.vocabulary, self.atlas.map)
+        shared = Shared(cfg, self.rig, self.atlas, self.places, self.stats)
         self.ba = BundleAdjuster(cfg, self.rig, self.atlas.map, self.stats, self._side)
-        self.mapper = LocalMapping(cfg, self.rig, self.atlas, self.places, self.ba, self.stats)
-        self.initializer = MonoInitializer(cfg, self.rig, self.atlas, self.mapper, self.stats)
-        self.tracker = Tracking(cfg, self.rig, self.atlas, self.places, self.stats)
-        self.loops = LoopClosing(
-            cfg, self.rig, self.atlas, self.places, self.mapper, self.ba, self.stats
-        )
+        self.mapper = LocalMapping(shared, self.ba)
+        self.initializer = MonoInitializer(shared, self.mapper)
+        self.tracker = Tracking(shared)
+        self.loops = LoopClosing(shared, self.mapper, self.ba)
         self._features = Prefetch(self.rig.extract, ahead=cfg.threads == 2, name="orb")
         self._frames = 0
         self._textureless = 0

@@ -20,11 +20,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.geometry import inverse
-from slamcli.pipelines.timing import Stats
-from slamcli.pipelines.visual.atlas import Atlas, FrameRecord, Keyframe, SparseMap
-from slamcli.pipelines.visual.config import VisualConfig
-from slamcli.pipelines.visual.frames import Frame, Rig
-from slamcli.pipelines.visual.places import Places
+from slamcli.pipelines.visual.atlas import FrameRecord, Keyframe
+from slamcli.pipelines.visual.frames import Frame
+from slamcli.pipelines.visual.parts import Part, Shared
 from slamcli.pipelines.visual.search import in_view, project_match
 from slamcli.vision.matching import TH_HIGH, match_ratio
 from slamcli.vision.pnp import absolute_pose
@@ -33,7 +31,7 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 
-class Tracking:
+class Tracking(Part):
     """The pose of each frame in the current map (ORB-SLAM's Tracking).
 
     Attributes:
@@ -44,26 +42,14 @@ class Tracking:
         lost_run: frames lost in a row.
     """
 
-    def __init__(
-        self, config: VisualConfig, rig: Rig, atlas: Atlas, places: Places, stats: Stats
-    ) -> None:
-        self.config, self.rig, self.atlas, self.places, self.stats = (
-            config,
-            rig,
-            atlas,
-            places,
-            stats,
-        )
+    def __init__(self, shared: Shared) -> None:
+        super().__init__(shared)
         self.reference: Keyframe | None = None
         self.last: Frame | None = None
         self._last_points: tuple[F64, NDArray[np.uint8], I64, I64] | None = None
         self.velocity: F64 | None = None
         self.lost_run = 0
         self._since_reloc = 100
-
-    @property
-    def map(self) -> SparseMap:
-        return self.atlas.map
 
     def has_map(self) -> bool:
         """Whether there is a map to track in: the reference keyframe is in the current map."""
