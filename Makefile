@@ -38,7 +38,7 @@ constraints:
 	$(PYTHON) -m venv .venv-constraints
 	.venv-constraints/bin/python -m pip install $(PIP) -e '.[test]'
 	{ echo "# Exact versions make and CI install with (pip install -c constraints.txt)."; \
-	  echo "# Regenerate with 'make constraints'; see README.md, 'Installs'."; \
+	  echo "# Regenerate with 'make constraints'; see docs/development.md, 'Installs'."; \
 	  .venv-constraints/bin/python -m pip freeze --exclude-editable; } > constraints.txt.new
 	mv constraints.txt.new constraints.txt
 	rm -rf .venv-constraints

@@ -35,7 +35,7 @@ from slamcli.errors import ExportError, InputError
 from slamcli.interrupts import watched
 
 RUN_SCHEMA_VERSION = 1
-"""Version of the run.json layout (documented in README.md, 'run.json')."""
+"""Version of the run.json layout (documented in docs/run-folders.md)."""
 
 _PACKAGES = (
     "numpy",

@@ -177,7 +177,7 @@ def _gates(pipeline: str, texts: list[str], baseline: Path | None) -> list[Any]:
             raise GateError(
                 f"--fail-if {gate.text!r}: a {pipeline} run has no metric {gate.metric!r}",
                 hint="metric names: ate.rmse, rpe.trans.rmse, ms_per_frame, frames.lost, and "
-                "the counts and metrics of run.json (see README.md, 'slamcli batch')",
+                "the counts and metrics of run.json (see docs/batch.md)",
             )
         if gate.uses_baseline and baseline is None:
             raise GateError(
