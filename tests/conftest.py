@@ -1,4 +1,6 @@
-"""Shared fixtures: paths to the real data in ../shared/data and small generated inputs."""
+"""Shared fixtures: paths to the real data in ../shared/data, and the commands and generated
+inputs that several tests read, made once per test session (``reference_run``, ``shared_run``,
+``shared_artefact``; see ``reference_runs.py``)."""
 
 from __future__ import annotations
 
