@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -13,7 +14,7 @@ from typer.testing import CliRunner
 from slamcli.cli.app import app
 from slamcli.formats.landmark_map import read_landmarks_csv
 from slamcli.formats.trajectory import read_trajectory
-from slamcli.run import run_pipeline
+from slamcli.run import RunOutcome, run_pipeline
 from slamcli.synth.landmarks import generate_landmark_world
 from tests.conftest import shared_path
 
@@ -26,28 +27,30 @@ def _record(out: Path) -> dict:
     return json.loads((out / "run.json").read_text())
 
 
-def test_mrclam_all_robots_meet_the_accuracy_goals(tmp_path: Path) -> None:
+def test_mrclam_all_robots_meet_the_accuracy_goals(shared_run: Any) -> None:
     """Dataset 6, robots 1-5, known correspondences, default settings for every robot."""
     folder = shared_path("landmarks", "MRCLAM_Dataset6")
     ate, dr, lm = [], [], []
     for robot in range(1, 6):
-        out = tmp_path / f"r{robot}"
-        outcome = run_pipeline(folder, "ekf", out, source_options={"robot": robot})
-        ev = outcome.metrics["evaluation"]
+        # Once per session: test_merge joins these runs, and robot 1 is a reference run.
+        run = shared_run("run", "ekf", folder, "--robot", str(robot))
+        assert run.exit_code == 0, run.output
+        record = _record(run.out)
+        metrics, counts = record["metrics"], record["counts"]
+        ev = metrics["evaluation"]
         assert ev["alignment"] == "se2"
         assert ev["trajectory"] == "smoothed"
         ate.append(ev["ate"]["rmse"])
         # Smoothing against the final map never makes the path worse than the filter's.
-        assert ev["ate"]["rmse"] <= outcome.metrics["filtered"]["ate"]["rmse"]
-        dr.append(outcome.metrics["dead_reckoning"]["ate"]["rmse"])
+        assert ev["ate"]["rmse"] <= metrics["filtered"]["ate"]["rmse"]
+        dr.append(metrics["dead_reckoning"]["ate"]["rmse"])
         lm.append(ev["landmarks"]["rmse_m"])
         assert ev["landmarks"]["matched"] == 15
         # Every landmark of the survey is mapped, under its own id.
-        mapped = read_landmarks_csv(out / "landmarks.csv")
+        mapped = read_landmarks_csv(run.out / "landmarks.csv")
         assert sorted(mapped.ids.tolist()) == list(range(6, 21))
         assert mapped.cov is not None and np.all(np.linalg.eigvalsh(mapped.cov) > 0)
         # The filter is never locked out: almost every observation is used.
-        counts = outcome.counts
         assert counts["rejected_by_gate"] < 0.02 * counts["observations"]
     print(f"ATE per robot {np.round(ate, 3)}, dead reckoning {np.round(dr, 3)}")
     print(f"landmark RMSE per robot {np.round(lm, 3)}")
@@ -58,10 +61,10 @@ def test_mrclam_all_robots_meet_the_accuracy_goals(tmp_path: Path) -> None:
     assert min(dr) > 1.0
 
 
-def test_mrclam_run_folder_and_cli(tmp_path: Path) -> None:
+def test_mrclam_run_folder_and_cli(shared_run: Any) -> None:
     folder = shared_path("landmarks", "MRCLAM_Dataset6")
-    out = tmp_path / "r4"
-    res = runner.invoke(app, ["run", "ekf", str(folder), "--robot", "4", "--out", str(out)])
+    res = shared_run("run", "ekf", folder, "--robot", "4")
+    out = res.out
     assert res.exit_code == 0, res.output
     assert {p.name for p in out.iterdir()} == {
         "trajectory.tum",
@@ -94,10 +97,19 @@ def _world(tmp_path: Path, seed: int) -> Path:
     return out
 
 
+@pytest.fixture(scope="module")
+def world7_known(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, RunOutcome]:
+    """World 7 and its known-correspondence run, the yardstick of both associations."""
+    root = tmp_path_factory.mktemp("world7")
+    world = _world(root, seed=7)
+    return world, run_pipeline(world, "ekf", root / "known")
+
+
 @pytest.mark.parametrize("association", ["nn", "jcbb"])
-def test_unknown_correspondences_make_no_false_landmarks(tmp_path: Path, association: str) -> None:
-    world = _world(tmp_path, seed=7)
-    known = run_pipeline(world, "ekf", tmp_path / "known")
+def test_unknown_correspondences_make_no_false_landmarks(
+    tmp_path: Path, association: str, world7_known: tuple[Path, RunOutcome]
+) -> None:
+    world, known = world7_known
     cfg_cls = __import__("slamcli.pipelines.ekf", fromlist=["EkfConfig"]).EkfConfig
     unknown = run_pipeline(
         world,
@@ -118,27 +130,28 @@ def test_unknown_correspondences_make_no_false_landmarks(tmp_path: Path, associa
     assert ev_u["nees"]["consistent"] is True
 
 
-def test_sample_world_known_ids_is_accurate_and_deterministic(tmp_path: Path) -> None:
-    a = run_pipeline(SAMPLE, "ekf", tmp_path / "a")
-    b = run_pipeline(SAMPLE, "ekf", tmp_path / "b")
-    assert (tmp_path / "a" / "trajectory.tum").read_bytes() == (
-        tmp_path / "b" / "trajectory.tum"
-    ).read_bytes()
-    assert (tmp_path / "a" / "landmarks.csv").read_bytes() == (
-        tmp_path / "b" / "landmarks.csv"
-    ).read_bytes()
-    ev = a.metrics["evaluation"]
-    dr = a.metrics["dead_reckoning"]["ate"]["rmse"]
+def test_sample_world_known_ids_is_accurate_and_deterministic(
+    tmp_path: Path, shared_run: Any
+) -> None:
+    # The first run is shared with test_run_folder (the same command), the second this test's.
+    a = shared_run("run", "ekf", SAMPLE)
+    assert a.exit_code == 0, a.output
+    b = run_pipeline(SAMPLE, "ekf", tmp_path / "b").run_dir
+    assert (a.out / "trajectory.tum").read_bytes() == (b / "trajectory.tum").read_bytes()
+    assert (a.out / "landmarks.csv").read_bytes() == (b / "landmarks.csv").read_bytes()
+    metrics = _record(a.out)["metrics"]
+    ev = metrics["evaluation"]
+    dr = metrics["dead_reckoning"]["ate"]["rmse"]
     assert ev["ate"]["rmse"] < 0.5 * dr
     assert ev["landmarks"]["matched"] == 40
     assert ev["nees"]["consistent"] is True
-    del b
 
 
-def test_victoria_park_unknown_correspondences_runs_to_the_end(tmp_path: Path) -> None:
+def test_victoria_park_unknown_correspondences_runs_to_the_end(shared_run: Any) -> None:
     path = shared_path("landmarks", "victoria_park.txt")
-    out = tmp_path / "vp"
-    res = runner.invoke(app, ["run", "ekf", str(path), "--ignore-ids", "--out", str(out)])
+    # Once per session: the README runs the same command.
+    res = shared_run("run", "ekf", path, "--ignore-ids")
+    out = res.out
     assert res.exit_code == 0, res.output
     record = _record(out)
     counts = record["counts"]

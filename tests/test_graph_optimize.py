@@ -15,6 +15,7 @@ import json
 import re
 import shlex
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -77,10 +78,12 @@ def _invoke(*args: str) -> tuple[int, str]:
 
 
 @pytest.mark.parametrize("name", GRAPHS)
-def test_error_equals_gtsam_optimum_and_files(name: str, tmp_path: Path) -> None:
+def test_error_equals_gtsam_optimum_and_files(name: str, shared_run: Any) -> None:
     path = _graph(name)
-    out = tmp_path / name
-    code, text = _invoke("graph", "optimize", str(path), "--out", str(out), "--json")
+    # Once per session: the README runs the same command on sphere2500.
+    run = shared_run("graph", "optimize", path, "--json")
+    out, code, text = run.out, run.exit_code, run.stdout + run.stderr
+    assert run.exception is None, run.exception
     assert code == 0, text
     record = json.loads(text)
     g = record["graph"]
@@ -262,17 +265,18 @@ def test_deterministic(tmp_path: Path) -> None:
     ).read_bytes()
 
 
-def test_help_examples_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_help_examples_run(tmp_path: Path, shared_run: Any) -> None:
     shared_path()
     (tmp_path / "shared").symlink_to(SHARED_DATA.parent, target_is_directory=True)
     work = tmp_path / "work"
     work.mkdir()
-    monkeypatch.chdir(work)
     command = typer.main.get_command(app).commands["graph"].commands["optimize"]  # type: ignore[attr-defined]
     examples = [" ".join(m.split()) for m in _EXAMPLE.findall(command.help or "")]
     assert len(examples) >= 3
     for line in examples:
-        result = CliRunner().invoke(app, shlex.split(line)[1:], catch_exceptions=False)
+        # Once per session: test_help_examples runs every help example too (and intel's is a
+        # reference run).
+        result = shared_run(*shlex.split(line)[1:], cwd=work)
+        assert result.exception is None, f"{line}\n{result.exception}"
         assert result.exit_code == 0, f"{line}\n{result.stdout}{result.stderr}"
-        out = Path(shlex.split(line)[shlex.split(line).index("--out") + 1])
-        assert (work / out / "optimized.g2o").is_file()
+        assert (result.out / "optimized.g2o").is_file()

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -226,14 +227,15 @@ def test_tum_excerpt_map_from_ground_truth(tmp_path: Path) -> None:
 # --- the landmark world ----------------------------------------------------------------------
 
 
-def test_ekf_run_with_map(tmp_path: Path) -> None:
+def test_ekf_run_with_map(shared_run: Any) -> None:
     from slamcli.formats.landmark_map import read_landmarks_csv
     from slamcli.formats.occupancy import world_to_cell
     from slamcli.formats.trajectory import read_trajectory
     from slamcli.geometry import umeyama
 
-    run = tmp_path / "ekf"
-    res = runner.invoke(app, ["run", "ekf", str(LANDMARKS), "--out", str(run), "--map"])
+    # Once per session: the next test and the help examples run the same command.
+    res = shared_run("run", "ekf", LANDMARKS, "--map")
+    run = res.out
     assert res.exit_code == 0, res.output
     assert "map.yaml" in res.output
     grid = read_map_yaml(run / "map.yaml")
@@ -326,16 +328,17 @@ def test_depth_of_a_distorted_camera_is_lifted_along_the_true_rays() -> None:
     np.testing.assert_allclose(raw.reshape(-1, 2), grid, atol=1e-6)
 
 
-def test_run_with_map_is_one_folder_that_names_itself(tmp_path: Path) -> None:
-    run = tmp_path / "ekf"
-    res = runner.invoke(app, ["run", "ekf", str(LANDMARKS), "--out", str(run), "--map"])
+def test_run_with_map_is_one_folder_that_names_itself(shared_run: Any) -> None:
+    res = shared_run("run", "ekf", LANDMARKS, "--map")
+    run = res.out
     assert res.exit_code == 0, res.output
     record = json.loads((run / "run.json").read_text())
     assert {"map.yaml", "map.pgm", "map.png", "map.json"} <= set(record["outputs"])
     # map.json names the run's final folder, not the staging folder it was built in.
     text = (run / "map.json").read_text()
     assert ".staging" not in text
-    assert [p.name for p in tmp_path.iterdir()] == ["ekf"]
+    # A shared run's folder holds its --out alone.
+    assert [p.name for p in run.parent.iterdir()] == [run.name]
 
 
 def test_run_with_map_refuses_a_monocular_run_before_its_frames(tmp_path: Path) -> None:

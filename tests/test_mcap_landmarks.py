@@ -29,7 +29,7 @@ from slamcli.types import LandmarkFrame, OdometryFrame
 
 ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_data" / "landmarks"
-DOC = ROOT / "docs" / "landmark_observations.md"
+DOC = ROOT / "docs" / "formats.md"
 runner = CliRunner()
 
 
@@ -306,7 +306,8 @@ def test_convert_then_info_lists_the_landmark_topic(tmp_path: Path) -> None:
 def test_the_documented_python_example_runs(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    blocks = re.findall(r"```python\n(.*?)```", DOC.read_text(encoding="utf-8"), re.S)
+    section = DOC.read_text(encoding="utf-8").split("## Landmark observations in MCAP")[1]
+    blocks = re.findall(r"```python\n(.*?)```", section.split("\n## ")[0], re.S)
     assert len(blocks) == 1
     code = blocks[0]
     assert len([line for line in code.splitlines() if line.strip()]) <= 16

@@ -32,9 +32,11 @@ import traceback
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import pytest
 from conftest import SHARED_DATA, shared_path
+from reference_runs import copy_out, out_argument, shareable_example
 from typer.testing import CliRunner
 
 from slamcli.cli.app import app
@@ -280,8 +282,19 @@ def _inside(work: Path) -> Iterator[None]:
         os.chdir(before)
 
 
-def _run_slamcli(example: Example, work: Path, capfd: pytest.CaptureFixture[str]) -> _Outcome:
+def _run_slamcli(
+    example: Example, work: Path, capfd: pytest.CaptureFixture[str], shared_run: Any
+) -> _Outcome:
     args, target = _argv(example.text)
+    if target is None and shareable_example(args, work):
+        # A command other tests run too (the demo, the reference runs on the TUM excerpt, on
+        # MRCLAM, ...): run once per session, its --out copied here for later examples.
+        out = out_argument(args)
+        assert out is not None
+        run = shared_run(*args, cwd=work, suffix=Path(out).suffix)
+        if run.out.exists():
+            copy_out(run, work / out)
+        return _Outcome(run.exit_code, run.stdout, run.stderr, run.traceback)
     capfd.readouterr()
     with _inside(work):
         result = CliRunner().invoke(app, args, env=ENV)
@@ -308,10 +321,12 @@ def _run_process(example: Example, work: Path) -> _Outcome:
     return _Outcome(proc.returncode, proc.stdout, proc.stderr)
 
 
-def _check(example: Example, work: Path, capfd: pytest.CaptureFixture[str]) -> str | None:
+def _check(
+    example: Example, work: Path, capfd: pytest.CaptureFixture[str], shared_run: Any
+) -> str | None:
     """What is wrong with the example's run, or None."""
     if example.kind == "slamcli":
-        run = _run_slamcli(example, work, capfd)
+        run = _run_slamcli(example, work, capfd, shared_run)
     else:
         run = _run_process(example, work)
     tail = f"\n--- stdout ---\n{run.stdout[-3000:]}\n--- stderr ---\n{run.stderr[-3000:]}"
@@ -333,15 +348,16 @@ def _check(example: Example, work: Path, capfd: pytest.CaptureFixture[str]) -> s
 class _Walkthrough:
     """The scratch checkout and how far through the pages it has been taken."""
 
-    def __init__(self, work: Path) -> None:
+    def __init__(self, work: Path, shared_run: Any) -> None:
         self.work = work
+        self.shared_run = shared_run
         self.done: set[tuple[str, str]] = set()
 
     def run_section(self, section: tuple[str, str], capfd: pytest.CaptureFixture[str]) -> list[str]:
         problems: list[str] = []
         for example in EXAMPLES:
             if (example.page, example.section) == section:
-                problem = _check(example, self.work, capfd)
+                problem = _check(example, self.work, capfd, self.shared_run)
                 if problem:
                     problems.append(problem)
         self.done.add(section)
@@ -349,7 +365,7 @@ class _Walkthrough:
 
 
 @pytest.fixture(scope="module")
-def walkthrough(tmp_path_factory: pytest.TempPathFactory) -> _Walkthrough:
+def walkthrough(tmp_path_factory: pytest.TempPathFactory, shared_run: Any) -> _Walkthrough:
     shared_path()  # skips here, fails under CI, when the real data is absent
     root = tmp_path_factory.mktemp("readme") / "root"
     work = root / "main"
@@ -357,7 +373,7 @@ def walkthrough(tmp_path_factory: pytest.TempPathFactory) -> _Walkthrough:
     (work / "sample_data").symlink_to(REPO / "sample_data", target_is_directory=True)
     (root / "shared").mkdir()
     (root / "shared" / "data").symlink_to(SHARED_DATA.resolve(), target_is_directory=True)
-    return _Walkthrough(work)
+    return _Walkthrough(work, shared_run)
 
 
 @pytest.mark.slow
