@@ -154,6 +154,9 @@ class Backend:
             params.relinearizeSkip = 10
             self._isam = gtsam.ISAM2(params)
         self.estimate = gtsam.Values()
+        # iSAM2 updated since ``estimate`` was last refreshed: keys it holds are read from it
+        # one by one (the same retraction as the whole estimate, without computing all of it).
+        self._stale = False
         self.factor_counts = {"odometry": 0, "landmark": 0, "robot": 0, "prior": 0}
 
     # -- building ----------------------------------------------------------------------------
@@ -221,14 +224,15 @@ class Backend:
     # -- solving -----------------------------------------------------------------------------
 
     def flush(self) -> None:
-        """Hand the new factors and values to the solver and refresh :attr:`estimate`."""
+        """Hand the new factors and values to the solver (iSAM2 updates its estimate; batch
+        re-solves every ``batch_every`` flushes)."""
         if self._new_graph.size() == 0 and self._new_values.size() == 0:
             return
         self.graph.push_back(self._new_graph)
         self.values.insert(self._new_values)
         if self._isam is not None:
             self._isam.update(self._new_graph, self._new_values)
-            self.estimate = self._isam.calculateEstimate()
+            self._stale = True
         else:
             self._flushes += 1
             if self._flushes % self.batch_every == 0:
@@ -249,25 +253,43 @@ class Backend:
         if self._isam is not None:
             for _ in range(2):
                 self._isam.update()
-            self.estimate = self._isam.calculateEstimate()
+            self._stale = True
+            self._refresh()
         else:
             self._batch()
 
+    def _solved(self, key: int) -> bool:
+        return self._stale and bool(self._isam.valueExists(key))
+
+    def _refresh(self) -> None:
+        if self._stale:
+            self.estimate = self._isam.calculateEstimate()
+            self._stale = False
+
     def pose(self, key: int) -> F64:
-        p = self.estimate.atPose2(key)
+        if self._solved(key):
+            p = self._isam.calculateEstimatePose2(key)
+        else:
+            p = self.estimate.atPose2(key)
         return np.array([p.x(), p.y(), p.theta()])
 
     def point(self, key: int) -> F64:
-        return np.asarray(self.estimate.atPoint2(key), dtype=np.float64).reshape(2)
+        if self._solved(key):
+            value = self._isam.calculateEstimatePoint2(key)
+        else:
+            value = self.estimate.atPoint2(key)
+        return np.asarray(value, dtype=np.float64).reshape(2)
 
     def error(self) -> float:
         """The graph's total error at the estimate (robust factors as their kernel counts)."""
+        self._refresh()
         return float(self.graph.error(self.estimate))
 
     def marginal_points(self, keys: list[int]) -> F64:
         """(n, 2, 2) marginal covariances of landmark ``keys`` at the estimate."""
         if not keys:
             return np.empty((0, 2, 2))
+        self._refresh()
         if self._isam is not None:
             return np.stack([self._isam.marginalCovariance(k) for k in keys])
         marg = self._gtsam.Marginals(self.graph, self.estimate)
