@@ -80,14 +80,27 @@ def nearest_neighbour(cands: Candidates, gate: float) -> NDArray[np.int64]:
     return out
 
 
-def joint_distance(ekf: LandmarkEkf, zs: F64, r_covs: F64, pairs: list[tuple[int, int]]) -> float:
-    """Squared Mahalanobis distance of the stacked innovation of ``(observation, slot)`` pairs."""
+def joint_distance(
+    ekf: LandmarkEkf,
+    zs: F64,
+    r_covs: F64,
+    pairs: list[tuple[int, int]],
+    predicted: dict[int, tuple[F64, F64]] | None = None,
+) -> float:
+    """Squared Mahalanobis distance of the stacked innovation of ``(observation, slot)`` pairs.
+
+    ``predicted`` keeps each slot's predicted observation and Jacobian between calls made at
+    one filter state (a search tries many pairings of the same slots).
+    """
     m = len(pairs)
     nu = np.empty(2 * m)
     h = np.zeros((2 * m, ekf.dim))
     r = np.zeros((2 * m, 2 * m))
+    cache = {} if predicted is None else predicted
     for k, (i, j) in enumerate(pairs):
-        zhat, hj = ekf.predicted(j)
+        if j not in cache:
+            cache[j] = ekf.predicted(j)
+        zhat, hj = cache[j]
         nu[2 * k] = zs[i][0] - zhat[0]
         nu[2 * k + 1] = wrap_angle(zs[i][1] - zhat[1])
         h[2 * k : 2 * k + 2, :3] = hj[:, :3]
@@ -120,6 +133,7 @@ def jcbb(
     nodes = 0
     pairs: list[tuple[int, int]] = []
     current = [UNMATCHED] * m
+    predicted: dict[int, tuple[F64, F64]] = {}
 
     def search(i: int, used: frozenset[int], paired: int) -> None:
         nonlocal best, best_score, nodes
@@ -127,7 +141,7 @@ def jcbb(
             return
         nodes += 1
         if i == m:
-            dist = joint_distance(ekf, zs, r_covs, pairs) if pairs else 0.0
+            dist = joint_distance(ekf, zs, r_covs, pairs, predicted) if pairs else 0.0
             score = (paired, -dist)
             if paired > best_score[0] or (paired == best_score[0] and -dist > best_score[1]):
                 best, best_score = list(current), score
@@ -136,7 +150,7 @@ def jcbb(
             if j in used:
                 continue
             pairs.append((i, j))
-            if joint_distance(ekf, zs, r_covs, pairs) < joint_gate(len(pairs)):
+            if joint_distance(ekf, zs, r_covs, pairs, predicted) < joint_gate(len(pairs)):
                 current[i] = j
                 search(i + 1, used | {j}, paired + 1)
                 current[i] = UNMATCHED
