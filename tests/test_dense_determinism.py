@@ -2,20 +2,18 @@
 
 Open3D's Gaussian pyramid filter rounds differently depending on the memory alignment of the
 image buffer, which depends on the allocation history of the process; these tests feed the same
-images at every alignment, and run the CLI twice with different heap layouts.
+images at every alignment, and compare a CLI run with another heap layout's. (The closed loop's
+fresh-process run is compared with its in-process run in test_dense.)
 """
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from dense_data import render_synth_loop
+from dense_data import cli_run
 
 ROOT = Path(__file__).resolve().parents[1]
 ROOM = ROOT / "sample_data" / "rgbd_room"
@@ -96,37 +94,9 @@ def test_multi_scale_odometry_does_not_depend_on_buffer_alignment() -> None:
     assert len(results) == 1
 
 
-@pytest.fixture(scope="module")
-def synth_loop(shared_artefact: Any) -> Path:
-    """The closed loop of test_dense: its loop closures are verified on full-size images."""
-    return shared_artefact("dense_synth_loop", render_synth_loop)
-
-
-def _cli_run(source: Path, out: Path, padding: int, *options: str) -> bytes:
-    """``slamcli run dense`` in a fresh process: its trajectory.tum's bytes."""
-    # A different environment size moves every later heap allocation, so two runs see their
-    # images at different addresses, as two runs on a busy machine would.
-    env = {**os.environ, "SLAMCLI_TEST_HEAP_PADDING": "x" * padding}
-    argv = [sys.executable, "-m", "slamcli", "run", "dense", str(source), "--out", str(out)]
-    proc = subprocess.run([*argv, *options], capture_output=True, text=True, env=env, check=False)
-    assert proc.returncode == 0, proc.stderr
-    trajectory = (out / "trajectory.tum").read_bytes()
-    assert trajectory, "empty trajectory"
-    return trajectory
-
-
 @pytest.mark.slow
 def test_two_cli_runs_write_byte_identical_trajectories(tmp_path: Path, reference_run: Any) -> None:
     """A run in a fresh process and the same command's reference run, made in a test
     process: two heap layouts, one trajectory."""
-    first = _cli_run(ROOM, tmp_path / "a", 100_000)
+    first = cli_run(ROOM, tmp_path / "a", 100_000)
     assert first == (reference_run("dense_room") / "trajectory.tum").read_bytes()
-
-
-@pytest.mark.slow
-def test_two_cli_runs_with_loop_closures_write_byte_identical_trajectories(
-    synth_loop: Path, tmp_path: Path
-) -> None:
-    first = _cli_run(synth_loop, tmp_path / "a", 0)
-    second = _cli_run(synth_loop, tmp_path / "b", 100_000)
-    assert first == second
