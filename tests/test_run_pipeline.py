@@ -86,6 +86,21 @@ def test_gates_read_the_outcome_not_the_folder(mapped: RunOutcome, monkeypatch: 
 # -- Ctrl-C --------------------------------------------------------------------------------------
 
 
+@pytest.fixture
+def interactive() -> Any:
+    """Ctrl-C handled and delivered, as in a shell: a test runner's worker process may have
+    SIGINT ignored or blocked (set by the runner or left by a library), which these tests
+    must not inherit. Both are put back afterwards."""
+    handler = signal.signal(signal.SIGINT, signal.default_int_handler)
+    blocked = signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT])
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
+        signal.signal(signal.SIGINT, handler)
+
+
+@pytest.mark.usefixtures("interactive")
 def test_an_error_after_ctrl_c_leaves_as_the_interrupt() -> None:
     """A Ctrl-C that breaks a native call half-way (an import, a solve) surfaces as the
     interruption, with the call's own error as its cause."""
@@ -100,6 +115,7 @@ def test_an_error_without_ctrl_c_stays_itself() -> None:
         raise RuntimeError("a real failure")
 
 
+@pytest.mark.usefixtures("interactive")
 def test_a_deferred_ctrl_c_waits_for_the_block_and_a_swallowed_one_is_checked() -> None:
     done = []
     with pytest.raises(KeyboardInterrupt), watched(deferred=True):
@@ -117,6 +133,7 @@ def test_a_deferred_ctrl_c_waits_for_the_block_and_a_swallowed_one_is_checked() 
         swallowed(check)
 
 
+@pytest.mark.usefixtures("interactive")
 def test_ctrl_c_ignored_stays_ignored() -> None:
     previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
