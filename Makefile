@@ -26,11 +26,9 @@ syslibs:
 
 # Installs are reproducible: every package comes at the exact version constraints.txt names, so
 # a fresh clone gets what the suite last passed with. pyproject.toml keeps ranges for users.
-# --no-compile: Python compiles each module when it is first imported, so only the modules
-# used are compiled, not every file of every package.
 $(STAMP): pyproject.toml constraints.txt
 	@test -x $(PY) || $(PYTHON) -m venv $(VENV)
-	$(PY) -m pip install $(PIP) --no-compile -c constraints.txt -e '.[test]'
+	$(PY) -m pip install $(PIP) -c constraints.txt -e '.[test]'
 	@touch $(STAMP)
 
 # A deliberate upgrade: resolve in a scratch environment, then run `make test` and commit
