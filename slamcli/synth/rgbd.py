@@ -498,6 +498,11 @@ class RgbdWorld:
     trajectory: Trajectory
     depth_stamps_ns: NDArray[np.int64]
     _raycaster: Any = field(default=None, repr=False)
+    # Rays through the pixels in the camera frame, per set of sub-pixel offsets (the same for
+    # every pose).
+    _camera_rays: dict[tuple[tuple[float, float], ...], list[F64]] = field(
+        default_factory=dict, repr=False
+    )
 
     def cast(self, world_from_cam: F64) -> tuple[F32, NDArray[np.int32]]:
         """Ray cast through the pixel centres from a (4, 4) world_from_camera pose.
@@ -537,13 +542,18 @@ class RgbdWorld:
     def _directions(self, world_from_cam: F64, offsets: tuple[tuple[float, float], ...]) -> F32:
         """World ray directions (K, H, W, 3) with unit z in the camera frame, per pixel offset."""
         cam = self.camera
-        uv = np.stack(
-            np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height)), axis=-1
-        )
+        rays = self._camera_rays.get(offsets)
+        if rays is None:
+            uv = np.stack(
+                np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height)),
+                axis=-1,
+            )
+            rays = [unproject(cam, uv + offset, 1.0) for offset in offsets]
+            self._camera_rays[offsets] = rays
         out = np.empty((len(offsets), cam.height, cam.width, 3), dtype=np.float32)
         rot = world_from_cam[:3, :3]
-        for k, offset in enumerate(offsets):
-            out[k] = unproject(cam, uv + offset, 1.0) @ rot.T
+        for k, camera_rays in enumerate(rays):
+            out[k] = camera_rays @ rot.T
         return out
 
     def _cast(self, world_from_cam: F64, dirs: F32) -> tuple[F32, NDArray[np.int32]]:
