@@ -11,7 +11,7 @@ PIP    := --quiet --disable-pip-version-check
 FUZZ_CASES ?= 10000
 FUZZ_SEED  ?= 0
 
-.PHONY: demo test setup syslibs lint bench fuzz constraints clean vocabulary
+.PHONY: demo test setup syslibs bytecode lint bench fuzz constraints clean vocabulary
 
 demo: setup
 	$(VENV)/bin/slamcli demo --out runs/demo --force
@@ -19,10 +19,15 @@ demo: setup
 test: setup
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
-setup: syslibs $(STAMP)
+setup: syslibs $(STAMP) bytecode
 
 syslibs:
 	@sh scripts/ensure-syslibs.sh
+
+# Where PYTHONDONTWRITEBYTECODE is set, Python never caches slamcli's own modules, and every
+# process (each run, each side process) would compile them again; compiled here, they are read.
+bytecode: $(STAMP)
+	@$(PY) -m compileall -q slamcli
 
 # Installs are reproducible: every package comes at the exact version constraints.txt names, so
 # a fresh clone gets what the suite last passed with. pyproject.toml keeps ranges for users.
