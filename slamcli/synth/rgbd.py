@@ -588,10 +588,10 @@ class RgbdWorld:
         d = dirs.reshape(-1, 3)
         points = origin + np.where(hit, t.reshape(-1), 0.0)[:, None] * d
         table = self._surface_table()
-        rel = points - table["origin"][s]
-        a = np.einsum("ij,ij->i", rel, table["u"][s])
-        b = np.einsum("ij,ij->i", rel, table["v"][s])
-        normal = table["normal"][s]
+        rel = points - np.take(table["origin"], s, axis=0)
+        a = np.einsum("ij,ij->i", rel, np.take(table["u"], s, axis=0))
+        b = np.einsum("ij,ij->i", rel, np.take(table["v"], s, axis=0))
+        normal = np.take(table["normal"], s, axis=0)
         d_norm = np.linalg.norm(d, axis=1)
         cos_inc = np.abs(np.einsum("ij,ij->i", d, normal)) / d_norm
         # A sub-pixel ray covers half a pixel; its footprint on the surface grows with depth
@@ -599,10 +599,15 @@ class RgbdWorld:
         ray_length = np.where(hit, t.reshape(-1), 0.0) * d_norm
         footprint = ray_length / (2.0 * self.camera.fx * np.maximum(cos_inc, 0.2))
         level = np.floor(np.log2(np.maximum(footprint / TEXEL_M, 1e-6)) + 0.5)
-        level = np.clip(level, 0, table["levels"][s] - 1).astype(np.int64)
+        level = np.clip(level, 0, np.take(table["levels"], s) - 1).astype(np.int64)
         key = np.where(hit, s * _MIP_LEVELS + level, -1)
-        order = np.argsort(key, kind="stable")
-        keys, starts = np.unique(key[order], return_index=True)
+        # Keys are small (surface, mip level) numbers: a stable sort of 16-bit keys is a radix
+        # sort, and the sorted keys give each run's start without sorting again.
+        small = key.astype(np.int16) if len(self.scene.surfaces) * _MIP_LEVELS < 2**15 else key
+        order = np.argsort(small, kind="stable")
+        ordered = key[order]
+        starts = np.concatenate([[0], np.flatnonzero(ordered[1:] != ordered[:-1]) + 1])
+        keys = ordered[starts]
         ends = np.append(starts[1:], key.size)
         colours = np.zeros((key.size, 3), dtype=np.float32)
         for k, start, end in zip(keys, starts, ends, strict=True):
