@@ -264,3 +264,19 @@ class Prefetch(Generic[_T, _R]):
         if self._pool is not None:
             self._pool.shutdown()
             self._pool = None
+
+
+def npy_header(npz: Any, name: str) -> tuple[tuple[int, ...], np.dtype[Any]] | None:
+    """Shape and dtype that member ``name`` of an open ``np.load``-ed .npz declares, read from
+    its header without loading the array; None for a .npy format version numpy's readers do not
+    know. Readers check the size before numpy allocates it (a compressed member of zeros can
+    declare gigabytes in a few kilobytes)."""
+    with npz.zip.open(f"{name}.npy") as fh:
+        version = np.lib.format.read_magic(fh)
+        if version == (1, 0):
+            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
+        elif version == (2, 0):
+            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
+        else:
+            return None
+    return tuple(int(s) for s in shape), dtype

@@ -14,6 +14,7 @@ from numpy.typing import NDArray
 
 from slamcli.atomic import atomic_path
 from slamcli.errors import FormatError, InputError
+from slamcli.formats.base import npy_header
 from slamcli.formats.images import MAX_IMAGE_PIXELS
 from slamcli.formats.occupancy.grid import check_grid
 from slamcli.types import OccupancyGrid
@@ -139,17 +140,12 @@ def _check_npz_member_size(p: Path, z: Any, name: str) -> None:
 
     A compressed member of zeros declaring gigabytes is a few kilobytes on disk.
     """
-    member = f"{name}.npy"
-    if member not in z.zip.namelist():
+    if f"{name}.npy" not in z.zip.namelist():
         raise FormatError(p, f"'{name}' is not an .npy array", hint=_NPZ_HINT)
-    with z.zip.open(member) as fh:
-        version = np.lib.format.read_magic(fh)
-        if version == (1, 0):
-            shape, _, dtype = np.lib.format.read_array_header_1_0(fh)
-        elif version == (2, 0):
-            shape, _, dtype = np.lib.format.read_array_header_2_0(fh)
-        else:
-            raise FormatError(p, f"array '{name}' has .npy format version {version}")
+    header = npy_header(z, name)
+    if header is None:
+        raise FormatError(p, f"array '{name}' has an .npy format version numpy cannot read")
+    shape, dtype = header
     cells = math.prod(shape)
     if cells * dtype.itemsize > MAX_IMAGE_PIXELS * 8:
         raise FormatError(

@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from slamcli.atomic import atomic_path
 from slamcli.errors import FormatError, InputError
+from slamcli.formats.base import npy_header
 from slamcli.vision.vocabulary.tree import (
     DESCRIPTOR_BYTES,
     FORMAT_TAG,
@@ -159,22 +160,11 @@ def _read_members(path: Path, npz: Any) -> dict[str, NDArray[Any]]:
         raise _not_vocabulary(path, f"missing {', '.join(missing)}")
     for big in ("centroids", "children", "idf"):
         # The header states the shape; refuse a huge one before numpy allocates it.
-        shape = _member_shape(npz, big)
+        header = npy_header(npz, big)
+        shape = header[0] if header is not None else None
         if shape is not None and math.prod(shape) > MAX_NODES * DESCRIPTOR_BYTES:
             raise _not_vocabulary(path, f"{big} declares shape {shape}")
     return {m: npz[m] for m in _MEMBERS}
-
-
-def _member_shape(npz: Any, name: str) -> tuple[int, ...] | None:
-    with npz.zip.open(f"{name}.npy") as fh:
-        version = np.lib.format.read_magic(fh)
-        if version == (1, 0):
-            shape, _, _ = np.lib.format.read_array_header_1_0(fh)
-        elif version == (2, 0):
-            shape, _, _ = np.lib.format.read_array_header_2_0(fh)
-        else:
-            return None
-    return tuple(int(s) for s in shape)
 
 
 def _scalar(path: Path, arrays: dict[str, NDArray[Any]], name: str) -> int:
