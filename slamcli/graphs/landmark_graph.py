@@ -153,9 +153,10 @@ class Backend:
             params.setRelinearizeThreshold(0.05)
             params.relinearizeSkip = 10
             self._isam = gtsam.ISAM2(params)
-        self.estimate = gtsam.Values()
-        # iSAM2 updated since ``estimate`` was last refreshed: keys it holds are read from it
-        # one by one (the same retraction as the whole estimate, without computing all of it).
+        self._estimate = gtsam.Values()
+        # Every value's latest estimate, read through pose() and point(). With iSAM2 it is
+        # refreshed whole only when needed (error, marginals, finish): while ``_stale``, the
+        # keys iSAM2 holds are read from it one by one (the same retraction).
         self._stale = False
         self.factor_counts = {"odometry": 0, "landmark": 0, "robot": 0, "prior": 0}
 
@@ -174,16 +175,16 @@ class Backend:
         """A new pose with its initial value (x, y, yaw)."""
         pose = self._gtsam.Pose2(float(guess[0]), float(guess[1]), float(guess[2]))
         self._new_values.insert(key, pose)
-        self.estimate.insert(key, pose)
+        self._estimate.insert(key, pose)
 
     def add_point(self, key: int, guess: F64) -> None:
         """A new landmark with its initial value (x, y)."""
         point = np.array([float(guess[0]), float(guess[1])])
         self._new_values.insert(key, point)
-        self.estimate.insert(key, point)
+        self._estimate.insert(key, point)
 
     def has(self, key: int) -> bool:
-        return bool(self.estimate.exists(key))
+        return bool(self._estimate.exists(key))
 
     def prior(self, key: int, pose: F64, cov: F64) -> None:
         """A prior on a pose; ``cov`` (3, 3) in its tangent space."""
@@ -244,7 +245,8 @@ class Backend:
         g = self._gtsam
         params = g.LevenbergMarquardtParams()
         params.setMaxIterations(100)
-        self.estimate = g.LevenbergMarquardtOptimizer(self.graph, self.estimate, params).optimize()
+        optimizer = g.LevenbergMarquardtOptimizer(self.graph, self._estimate, params)
+        self._estimate = optimizer.optimize()
 
     def finish(self) -> None:
         """The final estimate: everything flushed; batch runs Levenberg–Marquardt once more
@@ -263,27 +265,27 @@ class Backend:
 
     def _refresh(self) -> None:
         if self._stale:
-            self.estimate = self._isam.calculateEstimate()
+            self._estimate = self._isam.calculateEstimate()
             self._stale = False
 
     def pose(self, key: int) -> F64:
         if self._solved(key):
             p = self._isam.calculateEstimatePose2(key)
         else:
-            p = self.estimate.atPose2(key)
+            p = self._estimate.atPose2(key)
         return np.array([p.x(), p.y(), p.theta()])
 
     def point(self, key: int) -> F64:
         if self._solved(key):
             value = self._isam.calculateEstimatePoint2(key)
         else:
-            value = self.estimate.atPoint2(key)
+            value = self._estimate.atPoint2(key)
         return np.asarray(value, dtype=np.float64).reshape(2)
 
     def error(self) -> float:
         """The graph's total error at the estimate (robust factors as their kernel counts)."""
         self._refresh()
-        return float(self.graph.error(self.estimate))
+        return float(self.graph.error(self._estimate))
 
     def marginal_points(self, keys: list[int]) -> F64:
         """(n, 2, 2) marginal covariances of landmark ``keys`` at the estimate."""
@@ -292,5 +294,5 @@ class Backend:
         self._refresh()
         if self._isam is not None:
             return np.stack([self._isam.marginalCovariance(k) for k in keys])
-        marg = self._gtsam.Marginals(self.graph, self.estimate)
+        marg = self._gtsam.Marginals(self.graph, self._estimate)
         return np.stack([marg.marginalCovariance(k) for k in keys])
