@@ -196,8 +196,57 @@ class ImuFrame:
     gyro_radps: NDArray[np.float64] | None = None
 
 
-Frame = RgbdFrame | ImageFrame | OdometryFrame | LandmarkFrame | ImuFrame
-"""Frame kinds, by the name a pipeline asks for: rgbd, image, odometry, landmarks, imu."""
+@dataclass(frozen=True)
+class ScanFrame:
+    """One sweep of a 2-D laser scanner, as ``sensor_msgs/LaserScan`` records it.
+
+    Beam ``i`` points at ``angle_min_rad + i * angle_increment_rad`` in the sensor frame
+    (counter-clockwise from its x axis). Ranges are kept as recorded; which are readings
+    follows the message's rules (REP 117): a reading is finite and within
+    ``[range_min_m, range_max_m]``; ``+inf`` or a value above ``range_max_m`` is no return
+    (nothing within range along that beam), ``-inf`` or one below ``range_min_m`` is too close,
+    NaN is an erroneous beam.
+
+    Attributes:
+        stamp_ns: int64 nanoseconds of the sweep.
+        ranges_m: (N,) float32 metres.
+        angle_min_rad: angle of the first beam.
+        angle_increment_rad: angle between beams (non-zero; negative for a clockwise scanner).
+        range_min_m, range_max_m: the scanner's valid range.
+        body_from_sensor: (3,) float64 planar mounting (x m, y m, yaw rad) of the scanner on
+            the body whose odometry the source reports.
+        name: where the scan came from (file and line, or topic and index), for messages.
+    """
+
+    stamp_ns: int
+    ranges_m: NDArray[np.float32]
+    angle_min_rad: float
+    angle_increment_rad: float
+    range_min_m: float
+    range_max_m: float
+    body_from_sensor: NDArray[np.float64] = field(default_factory=lambda: np.zeros(3))
+    name: str = ""
+
+    def angles(self) -> NDArray[np.float64]:
+        """(N,) float64 beam angles in the sensor frame."""
+        n = len(self.ranges_m)
+        return self.angle_min_rad + self.angle_increment_rad * np.arange(n, dtype=np.float64)
+
+    def readings(self) -> NDArray[np.bool_]:
+        """(N,) bool: the beams whose range is a reading (finite, within the valid range)."""
+        r = self.ranges_m
+        with np.errstate(invalid="ignore"):
+            return np.isfinite(r) & (r >= self.range_min_m) & (r <= self.range_max_m)
+
+    def no_returns(self) -> NDArray[np.bool_]:
+        """(N,) bool: the beams that saw nothing within ``range_max_m`` (``+inf`` or beyond)."""
+        r = self.ranges_m
+        with np.errstate(invalid="ignore"):
+            return np.isposinf(r) | (np.isfinite(r) & (r > self.range_max_m))
+
+
+Frame = RgbdFrame | ImageFrame | OdometryFrame | LandmarkFrame | ImuFrame | ScanFrame
+"""Frame kinds, by the name a pipeline asks for: rgbd, image, odometry, landmarks, imu, scan."""
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from slamcli.types import Frame, LandmarkMap, PinholeCamera, ProgressFn, Trajectory
 
-ALL_FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu")
+ALL_FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu", "scan")
 """Every frame kind a source may be asked for."""
 
 
