@@ -1,4 +1,5 @@
-"""Trajectory accuracy: ATE and RPE with Umeyama SE(3)/Sim(3) alignment.
+"""Trajectory accuracy: ATE and RPE with Umeyama SE(3)/Sim(3) or planar SE(2) alignment, and
+the relative errors of Kümmerle et al. (2009) over a ``.relations`` file.
 
 The numbers agree with evo 1.38 (``evo_ape`` / ``evo_rpe``) given the same files and options:
 
@@ -11,14 +12,27 @@ The numbers agree with evo 1.38 (``evo_ape`` / ``evo_rpe``) given the same files
   are evaluated as separate poses. KITTI files have no stamps and pair by index.
 - **Alignment** of the estimate onto the ground truth from the matched positions: ``se3``
   (Umeyama, ``--align``), ``sim3`` (``--align --correct_scale``), ``scale`` (scale only,
-  ``--correct_scale``), ``none``.
-- **ATE**: distances between matched positions after alignment (evo APE, translation part).
+  ``--correct_scale``), ``none``; and ``se2``, the planar rigid fit of x, y and yaw about +z
+  (:func:`~slamcli.geometry.rigid_fit_2d` on the x-y positions), which evo does not have.
+- **ATE**: distances between matched positions after alignment (evo APE, translation part); with
+  ``se2`` distances in the x-y plane.
 - **RPE** (``--delta N --delta_unit f|m``, translation part and ``angle_deg``): relative poses
   between non-overlapping consecutive pairs of matched poses: every N-th pose, or a new pose
-  whenever the path travelled since the last one reaches N metres. The estimate is aligned
-  first, as ``evo_rpe --align`` does. A rigid alignment leaves relative poses unchanged, but
-  ``sim3`` and ``scale`` scale their translations, and with ``m`` the path length that picks
-  the pairs is measured on the aligned estimate.
+  whenever the path travelled since the last one reaches N metres, or (``seconds``, not in evo) the
+  first pose at least N seconds after the last one. The estimate is aligned first, as
+  ``evo_rpe --align`` does. A rigid alignment leaves relative poses unchanged, but ``sim3`` and
+  ``scale`` scale their translations, and with ``m`` the path length that picks the pairs is
+  measured on the aligned estimate.
+- **Planar RPE** (with ``se2``, and :func:`planar_rpe`): as Kümmerle et al. (2009) define it for
+  SE(2). Every pose is taken as (x, y, yaw), yaw the heading of the body x axis; for a pair
+  (i, j) the relative poses ``δ* = gt_i⁻¹ gt_j`` and ``δ = est_i⁻¹ est_j`` give the translation
+  error ``|t(δ) - t(δ*)|`` (the norm of the translation of ``δ*⁻¹ δ``) and the rotation error
+  ``|wrap(yaw(δ) - yaw(δ*))|``.
+- **Relations** (:func:`relations_error`): a ``.relations`` file
+  (:mod:`slamcli.formats.relations`) lists reference motions between the poses at two stamps.
+  Each stamp takes the estimate's pose of nearest stamp (after the offset) within
+  ``max_diff_s``; a relation without both is counted as missing. The errors are those of the
+  RPE between the relation and the estimate's motion: planar as above, or in SE(3).
 - **Statistics**: rmse, mean, median, std (population, ddof=0), min, max, sse.
 
 Times are int64 nanoseconds. The association alone works in float64 seconds, each stamp being
@@ -29,28 +43,48 @@ away, is decided by the rounding of those doubles, and real files contain such c
 
 from __future__ import annotations
 
+import logging
 from dataclasses import dataclass
-from typing import Any, Literal, Protocol
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, InputError
-from slamcli.geometry import compose, inverse, so3_log, umeyama
+from slamcli.geometry import (
+    between_planar,
+    compose,
+    inverse,
+    planar_to_se3,
+    rigid_fit_2d,
+    se3_to_planar,
+    so3_log,
+    umeyama,
+    wrap_angle,
+)
+
+if TYPE_CHECKING:
+    from slamcli.formats.relations import Relations
+
+log = logging.getLogger(__name__)
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
-AlignMode = Literal["se3", "sim3", "scale", "none"]
-DeltaUnit = Literal["frames", "m"]
-ALIGN_MODES: tuple[str, ...] = ("se3", "sim3", "scale", "none")
-DELTA_UNITS: tuple[str, ...] = ("frames", "m")
+AlignMode = Literal["se3", "sim3", "scale", "se2", "none"]
+DeltaUnit = Literal["frames", "m", "seconds"]
+ALIGN_MODES: tuple[str, ...] = ("se3", "sim3", "scale", "se2", "none")
+DELTA_UNITS: tuple[str, ...] = ("frames", "m", "seconds")
 STAT_KEYS: tuple[str, ...] = ("rmse", "mean", "median", "std", "min", "max", "sse")
 
 MIN_PAIRS_ALIGNED = 3
 """Fewest matched poses for an alignment (Umeyama needs three non-collinear points)."""
 
 _NS_PER_S = 1_000_000_000
+
+PLANAR_TILT_DEG = 10.0
+"""With ``se2``, a warning when a matched pose's body z axis tilts more than this from the
+world's: its yaw (the heading of the body x axis) is then not the planar heading."""
 
 
 class StampedPoses(Protocol):
@@ -127,12 +161,13 @@ class RpeResult:
 
     Attributes:
         delta: the pair spacing, in ``delta_unit``.
-        delta_unit: ``frames`` or ``m``.
+        delta_unit: ``frames``, ``m`` or ``seconds``.
         pairs: (K, 2) int64 indices into the matched poses (i, j) of each relative pose.
         trans_m: (K,) float64 translation error of each relative pose, metres.
         rot_deg: (K,) float64 rotation error of each relative pose, degrees.
         trans: statistics of ``trans_m``.
         rot: statistics of ``rot_deg``.
+        planar: errors of (x, y, yaw) poses in SE(2) (Kümmerle), not in SE(3).
     """
 
     delta: float
@@ -142,9 +177,69 @@ class RpeResult:
     rot_deg: F64
     trans: ErrorStats
     rot: ErrorStats
+    planar: bool = False
+
+    @property
+    def count(self) -> int:
+        """How many pose pairs were compared."""
+        return int(self.pairs.shape[0])
 
     def to_dict(self) -> dict[str, Any]:
-        return {"trans": self.trans.to_dict(), "rot_deg": self.rot.to_dict()}
+        """``{"trans": {stats}, "rot_deg": {stats}}``; planar errors also give ``"pairs"`` (the
+        count) first, as Kümmerle's figures are reported with it."""
+        out: dict[str, Any] = {"pairs": self.count} if self.planar else {}
+        out["trans"] = self.trans.to_dict()
+        out["rot_deg"] = self.rot.to_dict()
+        return out
+
+
+@dataclass(frozen=True)
+class RelationsResult:
+    """Errors of an estimate's relative motions against reference relations.
+
+    Attributes:
+        relations: how many relations were given.
+        used: (K,) int64 rows of the relations compared.
+        missing: (R,) int64 rows of the relations without an estimated pose within the
+            association window of t1 or of t2 (K + R = ``relations``).
+        est_pairs: (K, 2) int64 rows of the estimate taken for t1 and t2 of each used relation.
+        trans_m: (K,) float64 translation error of each used relation, metres.
+        rot_deg: (K,) float64 rotation error of each used relation, degrees.
+        trans: statistics of ``trans_m``.
+        rot: statistics of ``rot_deg``.
+        planar: errors of (x, y, yaw) motions in SE(2) (Kümmerle), not in SE(3).
+        path: the relations file, when read from one.
+    """
+
+    relations: int
+    used: I64
+    missing: I64
+    est_pairs: I64
+    trans_m: F64
+    rot_deg: F64
+    trans: ErrorStats
+    rot: ErrorStats
+    planar: bool
+    path: str | None = None
+
+    @property
+    def pairs(self) -> int:
+        """How many relations were compared."""
+        return int(self.used.shape[0])
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{["file"], "relations", "pairs", "missing", "planar", "trans": {stats},
+        "rot_deg": {stats}}``."""
+        out: dict[str, Any] = {"file": self.path} if self.path is not None else {}
+        out.update(
+            relations=self.relations,
+            pairs=self.pairs,
+            missing=int(self.missing.size),
+            planar=self.planar,
+            trans=self.trans.to_dict(),
+            rot_deg=self.rot.to_dict(),
+        )
+        return out
 
 
 @dataclass(frozen=True)
@@ -152,14 +247,16 @@ class EvalResult:
     """Everything :func:`evaluate` computed.
 
     Attributes:
-        alignment: ``se3``, ``sim3``, ``scale`` or ``none``.
+        alignment: ``se3``, ``sim3``, ``scale``, ``se2`` or ``none``.
         matched: the paired poses (indices and stamps, for plots and run records).
         aligned_est: (M, 4, 4) float64 matched estimate after alignment.
         rotation: (3, 3) float64 and translation: (3,) float64 metres and scale of the
             alignment ``p_gt ≈ scale * rotation @ p_est + translation``.
-        ate_m: (M,) float64 position error of each pair after alignment, metres.
+        ate_m: (M,) float64 position error of each pair after alignment, metres (in the x-y
+            plane with ``se2``).
         ate: statistics of ``ate_m``.
         rpe: relative pose errors, when asked for.
+        relations: errors over reference relations, when given.
     """
 
     alignment: str
@@ -171,13 +268,15 @@ class EvalResult:
     ate_m: F64
     ate: ErrorStats
     rpe: RpeResult | None = None
+    relations: RelationsResult | None = None
 
     @property
     def pairs(self) -> int:
         return len(self.matched)
 
     def to_dict(self) -> dict[str, Any]:
-        """``{"alignment", "pairs", "ate": {stats}, ["rpe": {"trans", "rot_deg"}], "scale"}``."""
+        """``{"alignment", "pairs", "ate": {stats}, ["rpe": {...}], ["relations": {...}],
+        "scale"}`` (see :meth:`RpeResult.to_dict`, :meth:`RelationsResult.to_dict`)."""
         out: dict[str, Any] = {
             "alignment": self.alignment,
             "pairs": self.pairs,
@@ -185,6 +284,8 @@ class EvalResult:
         }
         if self.rpe is not None:
             out["rpe"] = self.rpe.to_dict()
+        if self.relations is not None:
+            out["relations"] = self.relations.to_dict()
         out["scale"] = self.scale
         return out
 
@@ -223,11 +324,15 @@ def associate(
     return matched
 
 
-def _associate(gt: StampedPoses, est: StampedPoses, max_diff_s: float, offset_s: float) -> Matched:
+def _check_window(max_diff_s: float, offset_s: float) -> None:
     if not (max_diff_s >= 0.0 and np.isfinite(max_diff_s)):
         raise ConfigError(f"the association window must be >= 0 seconds, got {max_diff_s}")
     if not np.isfinite(offset_s):
         raise ConfigError(f"the time offset must be a finite number of seconds, got {offset_s}")
+
+
+def _associate(gt: StampedPoses, est: StampedPoses, max_diff_s: float, offset_s: float) -> Matched:
+    _check_window(max_diff_s, offset_s)
     gt_stamps, gt_poses = _checked(gt, "ground truth")
     est_stamps, est_poses = _checked(est, "estimate")
     est_longer = est_stamps.size > gt_stamps.size
@@ -308,7 +413,8 @@ def align(gt: F64, est: F64, mode: str = "se3") -> tuple[F64, F64, F64, float]:
         gt: (M, 4, 4) ground-truth poses.
         est: (M, 4, 4) estimated poses paired with ``gt``.
         mode: ``se3`` (rotation, translation), ``sim3`` (and scale), ``scale`` (the Sim(3)
-            scale only, no rotation or translation) or ``none``.
+            scale only, no rotation or translation), ``se2`` (a rotation about +z and an x-y
+            translation fitted on the x-y positions; z is left as it is) or ``none``.
 
     Returns:
         aligned estimate (M, 4, 4), rotation (3, 3), translation (3,) metres, scale, with
@@ -321,6 +427,10 @@ def align(gt: F64, est: F64, mode: str = "se3") -> tuple[F64, F64, F64, float]:
     rotation, translation, scale = np.eye(3), np.zeros(3), 1.0
     if mode == "none":
         return est.copy(), rotation, translation, scale
+    if mode == "se2":
+        fit, _ = rigid_fit_2d(est[:, :2, 3], np.asarray(gt, dtype=np.float64)[:, :2, 3])
+        transform = planar_to_se3(fit)[0]
+        return compose(transform, est), transform[:3, :3], transform[:3, 3], scale
     r, t, s = umeyama(est[:, :3, 3], np.asarray(gt, dtype=np.float64)[:, :3, 3], mode != "se3")
     aligned = est.copy()
     aligned[:, :3, 3] *= s
@@ -334,16 +444,23 @@ def align(gt: F64, est: F64, mode: str = "se3") -> tuple[F64, F64, F64, float]:
 _align = align
 
 
-def ate(gt: F64, aligned_est: F64) -> F64:
-    """(M,) position errors in metres between (M, 4, 4) ground truth and aligned estimate."""
-    return np.linalg.norm(np.asarray(aligned_est)[:, :3, 3] - np.asarray(gt)[:, :3, 3], axis=1)
+def ate(gt: F64, aligned_est: F64, planar: bool = False) -> F64:
+    """(M,) position errors in metres between (M, 4, 4) ground truth and aligned estimate; with
+    ``planar``, in the x-y plane."""
+    dims = 2 if planar else 3
+    diff = np.asarray(aligned_est)[:, :dims, 3] - np.asarray(gt)[:, :dims, 3]
+    return np.linalg.norm(diff, axis=1)
 
 
-def rpe_pairs(est: F64, delta: float, delta_unit: str = "frames") -> I64:
+def rpe_pairs(
+    est: F64, delta: float, delta_unit: str = "frames", stamps_ns: I64 | None = None
+) -> I64:
     """(K, 2) index pairs for the RPE, chosen on the (aligned) estimate (M, 4, 4).
 
     ``frames``: (0, N), (N, 2N), ...; ``m``: each pair ends at the first pose where the path
-    travelled since the pair's start reaches ``delta`` metres.
+    travelled since the pair's start reaches ``delta`` metres; ``seconds``: each pair ends at the
+    first pose whose stamp (``stamps_ns``, (M,) non-decreasing) is at least ``delta`` seconds
+    after the pair's start. Consecutive pairs share their end and start pose.
     """
     n = int(np.asarray(est).shape[0])
     if delta_unit == "frames":
@@ -354,6 +471,12 @@ def rpe_pairs(est: F64, delta: float, delta_unit: str = "frames") -> I64:
         if not delta > 0.0:
             raise ConfigError(f"RPE delta in metres must be > 0, got {delta}")
         ids = _ids_by_path(np.asarray(est)[:, :3, 3], float(delta))
+    elif delta_unit == "seconds":
+        if not (delta > 0.0 and np.isfinite(delta)):
+            raise ConfigError(f"RPE delta in seconds must be a finite number > 0, got {delta}")
+        if stamps_ns is None or np.asarray(stamps_ns).shape != (n,):
+            raise ConfigError("RPE delta in seconds needs one stamp per pose")
+        ids = _ids_by_time(np.asarray(stamps_ns, dtype=np.int64), max(1, round(float(delta) * 1e9)))
     else:
         raise ConfigError(
             f"RPE delta unit must be one of {', '.join(DELTA_UNITS)}, got {delta_unit!r}"
@@ -381,6 +504,20 @@ def _ids_by_path(positions: F64, delta: float) -> I64:
     return np.array(ids, dtype=np.int64)
 
 
+def _ids_by_time(stamps: I64, delta_ns: int) -> I64:
+    """Start of every pair when each pair ends at the first stamp at least ``delta_ns`` (>= 1)
+    after its start."""
+    ids = [0]
+    last = int(stamps[-1])
+    while True:
+        target = int(stamps[ids[-1]]) + delta_ns  # a Python int: no int64 overflow
+        if target > last:
+            break
+        # Some stamp is >= target > the start's, so the index is in range and after the start.
+        ids.append(int(np.searchsorted(stamps, target, side="left")))
+    return np.array(ids, dtype=np.int64)
+
+
 def rpe(gt: F64, aligned_est: F64, pairs: I64) -> tuple[F64, F64]:
     """Relative pose errors of (K, 2) index pairs.
 
@@ -391,11 +528,38 @@ def rpe(gt: F64, aligned_est: F64, pairs: I64) -> tuple[F64, F64]:
     q = np.asarray(gt, dtype=np.float64)
     p = np.asarray(aligned_est, dtype=np.float64)
     i, j = pairs[:, 0], pairs[:, 1]
-    q_rel = compose(inverse(q[i]), q[j])
-    p_rel = compose(inverse(p[i]), p[j])
-    err = compose(inverse(q_rel), p_rel)
+    return _se3_errors(compose(inverse(q[i]), q[j]), compose(inverse(p[i]), p[j]))
+
+
+def rpe_planar(gt: F64, est: F64, pairs: I64) -> tuple[F64, F64]:
+    """Relative pose errors in SE(2) of (K, 2) index pairs, as Kümmerle et al. (2009) define them.
+
+    Every (M, 4, 4) pose is taken as (x, y, yaw), yaw the heading of its body x axis. For a pair
+    (i, j), with ``δ* = gt_i⁻¹ gt_j`` and ``δ = est_i⁻¹ est_j``, the translation error is
+    ``|t(δ) - t(δ*)|`` (the translation norm of ``δ*⁻¹ δ``) and the rotation error
+    ``|wrap(yaw(δ) - yaw(δ*))|``. A planar rigid alignment of the estimate changes neither.
+
+    Returns:
+        (K,) translation errors in metres and (K,) rotation errors in degrees.
+    """
+    g = se3_to_planar(gt)
+    e = se3_to_planar(est)
+    i, j = pairs[:, 0], pairs[:, 1]
+    return _planar_errors(between_planar(g[i], g[j]), between_planar(e[i], e[j]))
+
+
+def _se3_errors(reference: F64, estimated: F64) -> tuple[F64, F64]:
+    """Translation norm (m) and rotation angle (deg) of ``reference⁻¹ estimated``, (K, 4, 4)."""
+    err = compose(inverse(reference), estimated)
     trans = np.linalg.norm(err[:, :3, 3], axis=1)
     rot = np.rad2deg(np.linalg.norm(so3_log(err[:, :3, :3]), axis=1))
+    return trans, rot
+
+
+def _planar_errors(reference: F64, estimated: F64) -> tuple[F64, F64]:
+    """Translation (m) and |wrapped yaw| (deg) differences of (K, 3) x, y, yaw motions."""
+    trans = np.linalg.norm(estimated[:, :2] - reference[:, :2], axis=1)
+    rot = np.rad2deg(np.abs(wrap_angle(estimated[:, 2] - reference[:, 2])))
     return trans, rot
 
 
@@ -409,21 +573,28 @@ def evaluate(
     by_index: bool = False,
     rpe_delta: float | None = None,
     delta_unit: str = "frames",
+    relations: Relations | None = None,
 ) -> EvalResult:
     """Associate, align and measure an estimated trajectory against ground truth.
 
     Args:
         gt: reference poses (a Trajectory or a PoseTable), stamps non-decreasing.
         est: estimated poses.
-        align: ``se3``, ``sim3``, ``scale`` or ``none`` (see :func:`align`).
+        align: ``se3``, ``sim3``, ``scale``, ``se2`` or ``none`` (see :func:`align`). With
+            ``se2`` the ATE is measured in the x-y plane and the RPE and relation errors in
+            SE(2) (:func:`rpe_planar`).
         max_diff_s: association window, seconds.
         offset_s: added to the estimate's stamps for the association, seconds.
         by_index: pair by row index instead of by time (KITTI).
         rpe_delta: also compute the RPE with pairs this far apart (None: no RPE).
-        delta_unit: ``frames`` or ``m``.
+        delta_unit: ``frames``, ``m`` or ``seconds``.
+        relations: also compute the errors over these reference relations
+            (:func:`relations_error`, with the same window and offset, on the estimate scaled
+            by the alignment's scale).
 
     Raises:
-        InputError: too few matched poses, or an RPE delta that gives no pairs.
+        InputError: too few matched poses, an RPE delta that gives no pairs, or no relation
+            with estimated poses at both ends.
         ConfigError: an option out of range.
     """
     if align not in ALIGN_MODES:
@@ -434,26 +605,19 @@ def evaluate(
         need = max(need, 2)
     if len(matched) < need:
         raise _too_few(matched, need, None if by_index else max_diff_s, offset_s)
+    planar = align == "se2"
+    if planar:
+        _warn_if_tilted(matched.gt, "ground truth")
+        _warn_if_tilted(matched.est, "estimate")
     aligned, rotation, translation, scale = _align(matched.gt, matched.est, align)
-    errors = ate(matched.gt, aligned)
+    errors = ate(matched.gt, aligned, planar)
     rpe_result = None
     if rpe_delta is not None:
-        pairs = rpe_pairs(aligned, rpe_delta, delta_unit)
-        if pairs.shape[0] == 0:
-            raise InputError(
-                f"RPE with delta {rpe_delta:g} {delta_unit} found no pose pairs among "
-                f"{len(matched)} matched poses",
-                hint="use a smaller --rpe-delta",
-            )
-        trans, rot = rpe(matched.gt, aligned, pairs)
-        rpe_result = RpeResult(
-            float(rpe_delta),
-            delta_unit,
-            pairs,
-            trans,
-            rot,
-            ErrorStats.of(trans),
-            ErrorStats.of(rot),
+        rpe_result = _rpe_result(matched, aligned, rpe_delta, delta_unit, planar)
+    relations_result = None
+    if relations is not None:
+        relations_result = relations_error(
+            est, relations, max_diff_s, offset_s=offset_s, planar=planar, scale=float(scale)
         )
     return EvalResult(
         alignment=align,
@@ -465,7 +629,163 @@ def evaluate(
         ate_m=errors,
         ate=ErrorStats.of(errors),
         rpe=rpe_result,
+        relations=relations_result,
     )
+
+
+def _rpe_result(
+    matched: Matched, aligned: F64, delta: float, delta_unit: str, planar: bool
+) -> RpeResult:
+    """The RPE of the matched poses, ``aligned`` being the aligned estimate."""
+    pairs = rpe_pairs(aligned, delta, delta_unit, matched.stamps_ns)
+    if pairs.shape[0] == 0:
+        raise InputError(
+            f"RPE with delta {delta:g} {delta_unit} found no pose pairs among "
+            f"{len(matched)} matched poses",
+            hint="use a smaller --rpe-delta",
+        )
+    trans, rot = (rpe_planar if planar else rpe)(matched.gt, aligned, pairs)
+    return RpeResult(
+        float(delta),
+        delta_unit,
+        pairs,
+        trans,
+        rot,
+        ErrorStats.of(trans),
+        ErrorStats.of(rot),
+        planar,
+    )
+
+
+def _warn_if_tilted(poses: F64, name: str) -> None:
+    """A warning when planar figures are asked of poses that are not planar."""
+    tilt = np.rad2deg(np.arccos(np.clip(np.asarray(poses)[:, 2, 2], -1.0, 1.0)))
+    worst = float(np.max(tilt))
+    if worst > PLANAR_TILT_DEG:
+        log.warning(
+            "planar evaluation takes each pose's yaw as the heading of its body x axis, but the "
+            "%s's body z axis tilts up to %.1f deg from the world's z axis (pose %d); are these "
+            "the poses of a planar robot?",
+            name,
+            worst,
+            int(np.argmax(tilt)),
+        )
+
+
+def planar_rpe(
+    gt: StampedPoses,
+    est: StampedPoses,
+    delta_s: float,
+    max_diff_s: float = 0.01,
+    *,
+    offset_s: float = 0.0,
+) -> RpeResult:
+    """Relative pose errors in SE(2) (Kümmerle et al. 2009) over pose pairs ``delta_s`` apart.
+
+    The poses are associated as in :func:`associate`; the pairs are consecutive, each ending at
+    the first matched pose at least ``delta_s`` seconds after its start (:func:`rpe_pairs`,
+    unit ``seconds``), and the errors are those of :func:`rpe_planar`. No alignment is needed: a
+    planar rigid motion of the estimate leaves its relative poses unchanged.
+
+    Args:
+        gt: reference poses (a Trajectory or a PoseTable), stamps non-decreasing.
+        est: estimated poses.
+        delta_s: the pair spacing, seconds (> 0).
+        max_diff_s: association window, seconds.
+        offset_s: added to the estimate's stamps for the association, seconds.
+
+    Raises:
+        InputError: fewer than two matched poses, or no pair ``delta_s`` apart.
+        ConfigError: an option out of range.
+    """
+    matched = associate(gt, est, max_diff_s, offset_s)
+    if len(matched) < 2:
+        raise _too_few(matched, 2, max_diff_s, offset_s)
+    return _rpe_result(matched, matched.est, delta_s, "seconds", planar=True)
+
+
+def relations_error(
+    est: StampedPoses,
+    relations: Relations,
+    max_diff_s: float = 0.01,
+    *,
+    offset_s: float = 0.0,
+    planar: bool = True,
+    scale: float = 1.0,
+) -> RelationsResult:
+    """Errors of the estimate's motions against reference relations (Kümmerle et al. 2009).
+
+    Each relation's stamps t1 and t2 take the estimate's poses of nearest stamp (plus
+    ``offset_s``) within ``max_diff_s``, with evo's tie rules (:func:`associate`); a relation
+    lacking either is counted as missing. The estimate's motion ``est(t1)⁻¹ est(t2)`` is
+    compared with the relation's: in SE(2) as :func:`rpe_planar` does (``planar``), otherwise
+    as :func:`rpe` does in SE(3). For planar poses and relations the two agree.
+
+    Args:
+        est: estimated poses, stamps non-decreasing.
+        relations: reference motions (:func:`slamcli.formats.relations.read_relations`).
+        max_diff_s: largest accepted difference between a relation's stamp and an estimated
+            pose's, seconds.
+        offset_s: added to the estimate's stamps, seconds.
+        planar: errors in SE(2) (x, y, yaw) rather than SE(3).
+        scale: the estimate's translations are multiplied by this first (a Sim(3) alignment's
+            scale; 1 for rigid ones, which leave relative motions unchanged).
+
+    Raises:
+        InputError: no relations, or none with estimated poses at both ends.
+        ConfigError: an option out of range.
+    """
+    _check_window(max_diff_s, offset_s)
+    if not (scale > 0.0 and np.isfinite(scale)):
+        raise ConfigError(f"the estimate's scale must be a finite number > 0, got {scale}")
+    stamps, poses = _checked(est, "estimate")
+    source = str(relations.path) if relations.path is not None else "relations"
+    if len(relations) == 0:
+        raise InputError(f"{source}: no relations to evaluate")
+    est_s = seconds_f64(stamps) + offset_s
+    first = _nearest_or_missing(seconds_f64(relations.t1_ns), est_s, max_diff_s)
+    second = _nearest_or_missing(seconds_f64(relations.t2_ns), est_s, max_diff_s)
+    ok = (first >= 0) & (second >= 0)
+    used = np.flatnonzero(ok).astype(np.int64)
+    if used.size == 0:
+        raise InputError(
+            f"{source}: none of the {len(relations)} relations has estimated poses within "
+            f"{max_diff_s:g} s of both its stamps (offset {offset_s:g} s)",
+            hint="check that the relations and the estimate use the same clock; widen "
+            "--t-max-diff, or shift the estimate's stamps with --t-offset",
+        )
+    a, b = poses[first[used]], poses[second[used]]
+    if scale != 1.0:
+        a, b = a.copy(), b.copy()
+        a[:, :3, 3] *= scale
+        b[:, :3, 3] *= scale
+    reference = relations.first_from_second[used]
+    if planar:
+        estimated = between_planar(se3_to_planar(a), se3_to_planar(b))
+        trans, rot = _planar_errors(se3_to_planar(reference), estimated)
+    else:
+        trans, rot = _se3_errors(reference, compose(inverse(a), b))
+    return RelationsResult(
+        relations=len(relations),
+        used=used,
+        missing=np.flatnonzero(~ok).astype(np.int64),
+        est_pairs=np.stack([first[used], second[used]], axis=1),
+        trans_m=trans,
+        rot_deg=rot,
+        trans=ErrorStats.of(trans),
+        rot=ErrorStats.of(rot),
+        planar=planar,
+        path=None if relations.path is None else str(relations.path),
+    )
+
+
+def _nearest_or_missing(query: F64, stamps: F64, max_diff: float) -> I64:
+    """For each query stamp, the row of the nearest of sorted ``stamps`` within ``max_diff``,
+    or -1."""
+    out = np.full(query.shape[0], -1, dtype=np.int64)
+    found, rows = _nearest(query, stamps, max_diff)
+    out[found] = rows
+    return out
 
 
 def _too_few(matched: Matched, need: int, max_diff_s: float | None, offset_s: float) -> InputError:
@@ -489,6 +809,7 @@ __all__ = [
     "ErrorStats",
     "EvalResult",
     "Matched",
+    "RelationsResult",
     "RpeResult",
     "StampedPoses",
     "align",
@@ -496,7 +817,10 @@ __all__ = [
     "associate_by_index",
     "ate",
     "evaluate",
+    "planar_rpe",
+    "relations_error",
     "rpe",
     "rpe_pairs",
+    "rpe_planar",
     "seconds_f64",
 ]

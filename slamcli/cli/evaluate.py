@@ -15,10 +15,11 @@ from slamcli.errors import ConfigError, InputError
 
 if TYPE_CHECKING:
     from slamcli.evaluation import EvalResult
+    from slamcli.formats.relations import Relations
     from slamcli.formats.trajectory import PoseTable
 
 HELP = """Score one or more estimated trajectories against ground truth: ATE and, with
---rpe-delta, RPE.
+--rpe-delta, RPE; with --relations, the relative errors over a .relations file.
 
 The figures equal evo's (evo_ape / evo_rpe 1.38) for the same files and options: the poses are
 associated by nearest timestamps (within --t-max-diff seconds, after adding --t-offset to the
@@ -31,11 +32,28 @@ errors are summarised as rmse, mean, median, std, min, max and sse.
 a times file (--gt-times, --est-times); [bold]auto[/] decides per file from its contents.
 
 [bold]Alignment[/] (--align): se3 (evo --align), sim3 (evo --align --correct_scale, for monocular
-SLAM), scale (evo --correct_scale alone), none.
+SLAM), scale (evo --correct_scale alone), none; and se2 for planar robots (2-D lidar, wheeled
+robots): a rigid fit of x, y and yaw about +z, the ATE measured in the x-y plane, and the RPE
+and relation errors in SE(2) as Kümmerle et al. (2009) define them.
+
+[bold]RPE[/] (--rpe-delta N --delta-unit frames|m|seconds): the relative motion between
+consecutive matched poses N frames, N metres of path or N seconds apart (each pair ends at the
+first pose at least that far on), compared with the ground truth's: translation error in
+metres, rotation error in degrees. In SE(2) (with se2) these are |t(δ) - t(δ*)| and
+|wrap(yaw(δ) - yaw(δ*))| for δ = est_i⁻¹ est_j and δ* = gt_i⁻¹ gt_j, and the pair count is
+reported.
+
+[bold]Relations[/] (--relations FILE): Kümmerle's benchmark files, one relation per line,
+"t1 t2 x y z roll pitch yaw": the motion from the pose at t1 to the pose at t2 (seconds) in the
+frame of the pose at t1 (metres, radians; # lines are comments). The estimate's poses at t1 and
+t2 are those of nearest stamp within --t-max-diff (after --t-offset); relations without both are
+counted as missing. The same translation and rotation errors are reported over the others,
+after the alignment's scale with sim3 or scale.
 
 [bold]Several estimates[/] (EST EST ...) are each scored exactly as one would be, with the same
 options, and shown as one table: a row per estimate (matched pairs, ATE rmse, mean, median, max,
-and the RPE rmse with --rpe-delta), the lowest ATE rmse marked with *. --json then prints
+the RPE rmse with --rpe-delta, the relations matched and their mean errors with --relations),
+the lowest ATE rmse marked with *. --json then prints
 {"groundtruth", "alignment", "estimates": [{"path", ...one estimate's fields}]} and --plot
 draws every aligned estimate over the ground truth. An EST may be a run folder (the --out of
 'slamcli run ...'): its trajectory.tum is scored and the row is named by the folder.
@@ -59,8 +77,12 @@ Examples:
 ../shared/data/trajectories/KITTI_00_ORB.txt --format kitti --rpe-delta 100 --delta-unit m \
 --plot ate.png[/]
 
-Exit codes: 0 ok; 1 unreadable or malformed file, too few matched poses, bad option value
-(with several estimates: any of them, named in the message; nothing is printed on stdout).
+[bold]slamcli eval sample_data/landmarks/groundtruth.tum runs/landmarks --align se2 \
+--rpe-delta 10 --delta-unit seconds[/]
+
+Exit codes: 0 ok; 1 unreadable or malformed file (a relations line names file:line), too few
+matched poses, no relation with estimated poses at both ends, bad option value (with several
+estimates: any of them, named in the message; nothing is printed on stdout).
 """
 
 
@@ -75,12 +97,14 @@ class AlignChoice(str, Enum):
     se3 = "se3"
     sim3 = "sim3"
     scale = "scale"
+    se2 = "se2"
     none = "none"
 
 
 class DeltaUnitChoice(str, Enum):
     frames = "frames"
     m = "m"
+    seconds = "seconds"
 
 
 def register(app: typer.Typer) -> None:
@@ -124,9 +148,19 @@ def eval_command(
     delta_unit: Annotated[
         DeltaUnitChoice,
         typer.Option(
-            "--delta-unit", help="RPE spacing: every N frames, or every N metres travelled."
+            "--delta-unit",
+            help="RPE spacing: every N frames, every N metres travelled, or every N seconds.",
         ),
     ] = DeltaUnitChoice.frames,
+    relations: Annotated[
+        Path | None,
+        typer.Option(
+            "--relations",
+            help="Also score the estimate's motions against this .relations file "
+            "(t1 t2 x y z roll pitch yaw per line; see above).",
+            show_default=False,
+        ),
+    ] = None,
     gt_times: Annotated[
         Path | None,
         typer.Option(
@@ -154,12 +188,16 @@ def eval_command(
     if plot is not None and plot.suffix.lower() != ".png":
         raise ConfigError(f"--plot {plot}: expected a .png file name")
     gt_poses, est_tables = _load(gt, ests, format.value, gt_times, est_times)
+    _require_stamps(
+        gt_poses, est_tables, rpe_delta is not None and delta_unit.value == "seconds", relations
+    )
     options = {
         "align": align.value,
         "max_diff_s": t_max_diff,
         "offset_s": t_offset,
         "rpe_delta": rpe_delta,
         "delta_unit": delta_unit.value,
+        "relations": _read_relations(relations),
     }
     if len(ests) > 1:
         scored = [_score(gt_poses, entry, options, named=True) for entry in est_tables]
@@ -263,6 +301,29 @@ def _load(
     return gt_table, [_Estimate(e, t) for e, t in zip(ests, est_tables, strict=True)]
 
 
+def _require_stamps(
+    gt: PoseTable, ests: list[_Estimate], by_seconds: bool, relations: Path | None
+) -> None:
+    """RPE pairs in seconds and relations need real stamps, which KITTI files lack without
+    their times files."""
+    untimed = [t.path for t in (gt, *(e.poses for e in ests)) if not t.timed]
+    if not untimed or not (by_seconds or relations is not None):
+        return
+    what = "--delta-unit seconds" if by_seconds else "--relations"
+    raise ConfigError(
+        f"{what} needs timestamps, and {untimed[0]} has none (KITTI without a times file)",
+        hint="give the KITTI files their times (--gt-times, --est-times)",
+    )
+
+
+def _read_relations(path: Path | None) -> Relations | None:
+    if path is None:
+        return None
+    from slamcli.formats.relations import read_relations
+
+    return read_relations(path)
+
+
 def _score(gt: PoseTable, est: _Estimate, options: dict[str, Any], named: bool) -> _Scored:
     """Evaluate one estimate; with ``named``, an input error says which estimate it is about."""
     from slamcli.evaluation import evaluate
@@ -339,13 +400,18 @@ def _show_many(
     }
     if first.rpe is not None:
         facts["RPE"] = f"over pose pairs {_spacing(first)} apart"
+    if first.relations is not None:
+        facts["relations"] = f"{first.relations.path} ({first.relations.relations} relations)"
     render.key_values("Evaluation", facts)
     best = min(s.result.ate.rmse for s in scored)
     with_scale = align in ("sim3", "scale")
     with_rpe = first.rpe is not None
+    with_relations = first.relations is not None
     columns = ["estimate", "pairs", "ATE rmse", "mean", "median", "max"]
     if with_rpe:
         columns += ["RPE trans rmse", "RPE rot rmse"]
+    if with_relations:
+        columns += ["relations", "REL trans mean", "REL rot mean"]
     if with_scale:
         columns.append("scale")
     rows = []
@@ -357,10 +423,16 @@ def _show_many(
         row += [f"{r.ate.mean:.6f}", f"{r.ate.median:.6f}", f"{r.ate.max:.6f}"]
         if r.rpe is not None:
             row += [f"{r.rpe.trans.rmse:.6f}", f"{r.rpe.rot.rmse:.6f}"]
+        if r.relations is not None:
+            rel = r.relations
+            row += [f"{rel.pairs} of {rel.relations}", f"{rel.trans.mean:.6f}"]
+            row.append(f"{rel.rot.mean:.6f}")
         if with_scale:
             row.append(f"{r.scale:.6f}")
         rows.append(row)
     units = "ATE in m" + (", RPE trans in m, rot in deg" if with_rpe else "")
+    if with_relations:
+        units += ", REL trans in m, rot in deg"
     _wide_table(f"{len(scored)} estimates ({units}); * lowest ATE rmse", columns, rows)
 
 
@@ -387,7 +459,11 @@ def _wide_table(title: str, columns: list[str], rows: list[list[str]]) -> None:
 def _spacing(result: EvalResult) -> str:
     assert result.rpe is not None
     d = result.rpe.delta
-    unit = ("frame" if d == 1 else "frames") if result.rpe.delta_unit == "frames" else "m"
+    unit = result.rpe.delta_unit
+    if unit == "frames":
+        unit = "frame" if d == 1 else "frames"
+    elif unit == "seconds":
+        unit = "s"
     return f"{d:g} {unit}"
 
 
@@ -422,6 +498,9 @@ def _plot_many(path: Path, gt: PoseTable, scored: list[_Scored], names: list[str
     return save_png(fig, path)
 
 
+_PLANAR = "se2 (x, y, yaw about +z; ATE in the x-y plane, relative errors in SE(2))"
+
+
 def _show(
     result: EvalResult,
     gt: PoseTable,
@@ -438,25 +517,35 @@ def _show(
         if by_index
         else f"{result.pairs} of {m.possible} (max diff {t_max_diff:g} s, offset {t_offset:g} s)"
     )
-    render.key_values(
-        "Evaluation",
-        {
-            "ground truth": f"{gt.path} ({gt.format}, {len(gt)} poses)",
-            "estimate": f"{est.path} ({est.format}, {len(est)} poses)",
-            "pairs": pairing,
-            "alignment": result.alignment,
-            "scale": f"{result.scale:.6f}",
-        },
-    )
+    facts = {
+        "ground truth": f"{gt.path} ({gt.format}, {len(gt)} poses)",
+        "estimate": f"{est.path} ({est.format}, {len(est)} poses)",
+        "pairs": pairing,
+        "alignment": _PLANAR if result.alignment == "se2" else result.alignment,
+        "scale": f"{result.scale:.6f}",
+    }
+    if result.rpe is not None:
+        facts["RPE pairs"] = f"{result.rpe.count} ({_spacing(result)} apart)"
+    rel = result.relations
+    if rel is not None:
+        facts["relations"] = f"{rel.pairs} of {rel.relations} in {rel.path}" + (
+            f" ({rel.missing.size} missing: no estimated pose within {t_max_diff:g} s of t1 or t2)"
+            if rel.missing.size
+            else ""
+        )
+    render.key_values("Evaluation", facts)
     columns = {"ATE (m)": result.ate}
     if result.rpe is not None:
         columns["RPE trans (m)"] = result.rpe.trans
         columns["RPE rot (deg)"] = result.rpe.rot
+    if rel is not None:
+        columns["REL trans (m)"] = rel.trans
+        columns["REL rot (deg)"] = rel.rot
     title = None
     if result.rpe is not None:
-        d = result.rpe.delta
-        unit = ("frame" if d == 1 else "frames") if result.rpe.delta_unit == "frames" else "m"
-        title = f"RPE over pose pairs {d:g} {unit} apart"
+        title = f"RPE over pose pairs {_spacing(result)} apart"
+    if rel is not None:
+        title = (title + "; " if title else "") + "REL over the relations"
     render.table(
         title,
         ["statistic", *columns],
