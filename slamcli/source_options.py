@@ -38,6 +38,7 @@ class SourceOptions:
     gt_topic: str | None = None
     gt_frame: str | None = None
     landmark_topic: str | None = None
+    scan_topic: str | None = None
 
     def __post_init__(self) -> None:
         # "--robot 2" arrives as text; one robot is recorded as the number it names.

@@ -149,6 +149,7 @@ GtTopic = Annotated[
 LandmarkTopic = Annotated[
     str | None, _topic("--landmark-topic", "Landmark observation topic (range-bearing)")
 ]
+ScanTopic = Annotated[str | None, _topic("--scan-topic", "Laser scan topic (LaserScan)")]
 GtFrame = Annotated[
     str | None,
     typer.Option(
@@ -182,6 +183,7 @@ _OPTIONS: dict[str, Any] = {
     "gt_topic": GtTopic,
     "gt_frame": GtFrame,
     "landmark_topic": LandmarkTopic,
+    "scan_topic": ScanTopic,
 }
 """The typer option of each :class:`SourceOptions` field."""
 

@@ -15,9 +15,12 @@ SOURCES: dict[str, str] = {
     "tum": "slamcli.formats.tum_rgbd:TumRgbdSource",
     "redwood": "slamcli.formats.redwood:RedwoodSource",
     "mcap": "slamcli.formats.mcap.source:McapSource",
+    "rosbag1": "slamcli.formats.rosbag.source:Ros1BagSource",
+    "rosbag2": "slamcli.formats.rosbag.source:Ros2BagSource",
     "mrclam": "slamcli.formats.landmarks:MrclamSource",
     "victoria": "slamcli.formats.landmarks:VictoriaParkSource",
     "landmarks": "slamcli.formats.landmarks:LandmarkWorldSource",
+    "carmen": "slamcli.formats.carmen:CarmenSource",
 }
 """Source classes by format name, as ``module:Class`` so a source's module (and what it
 imports: ``mcap``, OpenCV, ...) loads only when that source is used; :func:`source_class`
@@ -27,16 +30,21 @@ SNIFFERS: dict[str, Callable[[str | Path], bool]] = {
     "tum": sniff.tum_rgbd,
     "redwood": sniff.redwood,
     "mcap": sniff.mcap,
+    "rosbag1": sniff.rosbag1,
+    "rosbag2": sniff.rosbag2,
     "mrclam": sniff.mrclam,
     "victoria": sniff.victoria_park,
     "landmarks": sniff.landmark_world,
+    "carmen": sniff.carmen,
 }
 """The cheap test of each format (what its class's ``sniff`` calls), importing no source.
 
 They look at disjoint things (TUM: rgb.txt/depth.txt; Open3D/Redwood: depth/ beside image/
 or color/; MCAP: suffix or magic; MRCLAM: Barcodes.dat and RobotN_Odometry.dat; Victoria Park:
-the first record's keyword; synth landmarks: odometry.csv and measurements.csv), so the order
-only matters for odd mixtures."""
+the first record's keyword; synth landmarks: odometry.csv and measurements.csv; CARMEN: a
+.log/.clf suffix and the first message's keyword), so the order only matters for odd mixtures.
+ROS 1 bags: a .bag suffix or '#ROSBAG V'; ROS 2 bags: a folder with rosbag2's metadata.yaml, or
+a .db3 file."""
 
 
 def source_class(name: str) -> Any:
@@ -55,7 +63,10 @@ _LAYOUTS = (
     "a TUM RGB-D folder has rgb.txt and depth.txt; an Open3D/Redwood RGB-D folder image/ (or "
     "color/) and depth/; an MRCLAM folder Barcodes.dat and RobotN_Odometry.dat; a 'slamcli "
     "synth landmarks' folder odometry.csv and measurements.csv; an MCAP log starts with the "
-    "MCAP magic; a Victoria Park file has ODOMETRY and LANDMARK lines"
+    "MCAP magic; a Victoria Park file has ODOMETRY and LANDMARK lines; a CARMEN log (.log or "
+    ".clf, optionally gzipped) starts with CARMEN messages (PARAM, ODOM, FLASER, ROBOTLASER1, ...)"
+    "; a ROS 1 bag starts with '#ROSBAG V2.0'; a ROS 2 bag folder has rosbag2's metadata.yaml "
+    "beside its .db3 or .mcap files"
 )
 
 

@@ -7,13 +7,33 @@ and the message decoders); each source class's ``sniff`` calls the function here
 
 from __future__ import annotations
 
+import re
+import zlib
 from pathlib import Path
 
 MCAP_MAGIC = b"\x89MCAP0\r\n"
 """The bytes every MCAP file starts (and ends) with."""
 
+ROSBAG_MAGIC = b"#ROSBAG V2.0\n"
+"""The line a ROS 1 bag (format 2.0) starts with."""
+
+ROSBAG2_METADATA = "metadata.yaml"
+"""The file that makes a folder a ROS 2 bag (top-level key ``rosbag2_bagfile_information``)."""
+
 VICTORIA_KEYWORDS = ("ODOMETRY", "LANDMARK")
 """The record keywords that start the lines of a Victoria Park file."""
+
+GZIP_MAGIC = b"\x1f\x8b"
+"""The two bytes every gzip stream starts with."""
+
+CARMEN_SUFFIXES = (".log", ".clf")
+"""Suffixes of a CARMEN log (each also with ``.gz``)."""
+
+CARMEN_KEYWORD = re.compile(
+    r"PARAM|SYNC|ODOM|TRUEPOS|[FR]LASER|LASER\d|RAWLASER\d|ROBOTLASER\d|NMEA\w*|IMU|SONAR|BUMPER",
+    re.ASCII,
+)
+"""The keywords CARMEN's logger starts a message line with."""
 
 REDWOOD_COLOUR_FOLDERS = ("image", "color")
 """The colour-image folders of an Open3D / Redwood RGB-D folder, in the order looked for."""
@@ -46,6 +66,32 @@ def mcap(path: str | Path) -> bool:
         return True
     with p.open("rb") as fh:
         return fh.read(len(MCAP_MAGIC)) == MCAP_MAGIC
+
+
+def rosbag1(path: str | Path) -> bool:
+    """A ``.bag`` file, or any file starting with ``#ROSBAG V`` (a ROS 1 bag)."""
+    p = Path(path)
+    if not p.is_file():
+        return False
+    if p.suffix.lower() == ".bag":
+        return True
+    with p.open("rb") as fh:
+        return fh.read(len(ROSBAG_MAGIC)).startswith(ROSBAG_MAGIC[:9])
+
+
+def rosbag2(path: str | Path) -> bool:
+    """A ROS 2 bag: a folder whose ``metadata.yaml`` is rosbag2's, or a ``.db3`` file."""
+    p = Path(path)
+    if p.is_file():
+        return p.suffix.lower() == ".db3"
+    meta = p / ROSBAG2_METADATA
+    if not (p.is_dir() and meta.is_file()):
+        return False
+    try:
+        with meta.open("rb") as fh:
+            return b"rosbag2_bagfile_information" in fh.read(_HEAD_BYTES)
+    except OSError:
+        return False
 
 
 def mrclam_robots(folder: str | Path) -> list[int]:
@@ -81,6 +127,30 @@ def victoria_park(path: str | Path) -> bool:
     return False
 
 
+def carmen(path: str | Path) -> bool:
+    """A ``.log``/``.clf`` file (also ``.gz``) whose first message is a CARMEN one.
+
+    The first few KB are read, decompressed when they start with the gzip magic (whatever the
+    suffix).
+    """
+    p = Path(path)
+    name = p.name.lower().removesuffix(".gz")
+    if not (name.endswith(CARMEN_SUFFIXES) and p.is_file()):
+        return False
+    try:
+        with p.open("rb") as fh:
+            head = fh.read(_HEAD_BYTES)
+        if head.startswith(GZIP_MAGIC):
+            head = zlib.decompressobj(16 + zlib.MAX_WBITS).decompress(head, _HEAD_BYTES)
+    except (OSError, zlib.error):
+        return False
+    for line in head.decode("utf-8", errors="replace").splitlines():
+        text = line.strip().lstrip("\ufeff")
+        if text and not text.startswith("#"):
+            return CARMEN_KEYWORD.fullmatch(text.split(maxsplit=1)[0]) is not None
+    return False
+
+
 def landmark_world(path: str | Path) -> bool:
     """A ``slamcli synth landmarks`` folder: ``odometry.csv`` and ``measurements.csv``."""
     p = Path(path)
@@ -88,14 +158,22 @@ def landmark_world(path: str | Path) -> bool:
 
 
 __all__ = [
+    "CARMEN_KEYWORD",
+    "CARMEN_SUFFIXES",
+    "GZIP_MAGIC",
     "MCAP_MAGIC",
     "REDWOOD_COLOUR_FOLDERS",
+    "ROSBAG2_METADATA",
+    "ROSBAG_MAGIC",
     "VICTORIA_KEYWORDS",
+    "carmen",
     "landmark_world",
     "mcap",
     "mrclam",
     "mrclam_robots",
     "redwood",
+    "rosbag1",
+    "rosbag2",
     "tum_rgbd",
     "victoria_park",
 ]

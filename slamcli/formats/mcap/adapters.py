@@ -4,18 +4,28 @@ An adapter is called as ``adapter(message, log_time_ns, topic)`` with a message 
 :func:`slamcli.formats.mcap.decode.decoder_for`: a ``rosbags`` dataclass (ROS 1 and ROS 2), a
 protobuf message or a JSON ``dict`` (Foxglove schemas). It returns one record:
 :class:`ImageRecord`, :class:`CameraInfoRecord`, :class:`PoseRecord`, :class:`TransformRecord`,
-:class:`TwistRecord`, :class:`~slamcli.types.ImuFrame` or :class:`~slamcli.types.LandmarkFrame`
-(``slamcli.LandmarkObservations``, see :mod:`slamcli.formats.mcap.observations`).
+:class:`TwistRecord`, :class:`ScanRecord`, :class:`~slamcli.types.ImuFrame` or
+:class:`~slamcli.types.LandmarkFrame` (``slamcli.LandmarkObservations``, see
+:mod:`slamcli.formats.mcap.observations`).
 
 Stamps come from the message header (``sec`` + ``nanosec``) or Foxglove ``timestamp``; where that
 is absent or zero the log time is used. Images come out as owned, C-contiguous arrays: RGB
 (H, W, 3) uint8, mono (H, W) uint8, depth (H, W) float32 metres with 0 = no reading.
+
+Laser scans (``sensor_msgs/msg/LaserScan``, ROS 1 ``sensor_msgs/LaserScan``,
+``foxglove.LaserScan``) are checked before they become records: a scan without ranges, with an
+angle increment that is zero or not finite, with ranges that do not span ``angle_min`` to
+``angle_max`` (within one increment) or with a bad range interval raises :class:`DecodeError`,
+which a source counts as a skipped message. Foxglove scans carry no range limits and JSON no
+infinities: a range of 0 (how slamcli writes a beam without a reading) or ``null`` is no reading
+there, every positive finite range is one.
 """
 
 from __future__ import annotations
 
 import base64
 import logging
+import math
 import struct
 from collections.abc import Callable
 from typing import Any
@@ -31,11 +41,12 @@ from slamcli.formats.mcap.records import (
     CameraInfoRecord,
     ImageRecord,
     PoseRecord,
+    ScanRecord,
     TransformRecord,
     TwistRecord,
 )
 from slamcli.geometry import make_pose, quat_xyzw_to_matrix
-from slamcli.types import ImuFrame, LandmarkFrame, PinholeCamera
+from slamcli.types import ImuFrame, LandmarkFrame, PinholeCamera, ScanFrame
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +56,7 @@ AdapterRecord = (
     | PoseRecord
     | TransformRecord
     | TwistRecord
+    | ScanRecord
     | ImuFrame
     | LandmarkFrame
 )
@@ -68,6 +80,11 @@ _RAW_ENCODINGS: dict[str, tuple[str, str, int, str | None]] = {
     "32fc1": ("depth", "f4", 1, None),
 }
 _OPENCV_DISTORTION_MODELS = frozenset({"", "plumb_bob", "rational_polynomial"})
+_ANGLE_SLACK = 1.001
+"""How many increments the last beam's angle may be off ``angle_max`` (drivers round the beam
+count either way)."""
+_FOXGLOVE_RANGE_MIN = float(np.finfo(np.float32).smallest_normal)
+"""The range limit of a Foxglove scan: every positive range is a reading, 0 is none."""
 
 
 def normalize_schema_name(name: str) -> str:
@@ -513,11 +530,112 @@ def _foxglove_frame_transforms(msg: Any, log_time_ns: int, topic: str) -> Transf
     return TransformRecord(poses, is_static_tf_topic(topic))
 
 
+# -- laser scans ------------------------------------------------------------------------------
+
+
+def scan_record(
+    topic: str,
+    stamp_ns: int,
+    frame_id: str,
+    ranges: Any,
+    angle_min: float,
+    angle_max: float,
+    angle_increment: float,
+    range_limits: tuple[float, float],
+    frame_from_scan: NDArray[np.float64] | None = None,
+) -> ScanRecord:
+    """A checked :class:`ScanRecord` of one sweep (mounting zero until tf gives it).
+
+    Args:
+        topic: for error messages.
+        stamp_ns: the sweep's stamp.
+        frame_id: the frame the sweep was taken in.
+        ranges: (N,) metres, anything numpy turns into float32 (kept as recorded).
+        angle_min, angle_max: angles of the first and last beam, radians.
+        angle_increment: angle between beams, radians (negative for a clockwise scanner).
+        range_limits: (range_min, range_max) metres.
+        frame_from_scan: (4, 4) pose of the scan's origin in ``frame_id``, where the message
+            has one.
+
+    Raises:
+        DecodeError: no ranges, a zero or non-finite increment or angle, ranges that do not
+            span ``angle_min`` to ``angle_max`` within one increment, or a range interval that
+            is not one.
+    """
+    try:
+        r = np.array(ranges, dtype=np.float32).reshape(-1)
+    except (TypeError, ValueError) as exc:
+        raise DecodeError(f"channel {topic}: a scan's ranges are not numbers ({exc})") from None
+    n = r.size
+    inc, first, last = float(angle_increment), float(angle_min), float(angle_max)
+    where = f"channel {topic}: a scan"
+    if n == 0:
+        raise DecodeError(f"{where} has no ranges")
+    if not (math.isfinite(inc) and inc != 0.0):
+        raise DecodeError(
+            f"{where} has angle_increment {inc:g}; it must be a non-zero finite number",
+            hint="the driver wrote a broken message; it is skipped",
+        )
+    if not (math.isfinite(first) and math.isfinite(last)):
+        raise DecodeError(f"{where} has angles {first:g} to {last:g}; they must be finite")
+    end = first + (n - 1) * inc
+    if abs(end - last) > abs(inc) * _ANGLE_SLACK:
+        expected = round((last - first) / inc) + 1
+        raise DecodeError(
+            f"{where} has {n} ranges, which from angle_min {first:.6g} by {inc:.6g} rad end at "
+            f"{end:.6g} rad, not at angle_max {last:.6g} rad (that would take {expected} ranges)",
+            hint="the ranges do not match the angles; the scan is skipped",
+        )
+    low, high = (float(v) for v in range_limits)
+    if math.isnan(low) or math.isnan(high) or low > high:
+        raise DecodeError(f"{where} has range_min {low:g} and range_max {high:g}")
+    scan = ScanFrame(stamp_ns, r, first, inc, low, high, name=f"{topic}@{stamp_ns}")
+    return ScanRecord(frame_id, scan, frame_from_scan)
+
+
+def _ros_laser_scan(msg: Any, log_time_ns: int, topic: str) -> ScanRecord:
+    header = msg.header
+    return scan_record(
+        topic,
+        _header_stamp(header, log_time_ns),
+        header.frame_id,
+        msg.ranges,
+        msg.angle_min,
+        msg.angle_max,
+        msg.angle_increment,
+        (msg.range_min, msg.range_max),
+    )
+
+
+def _foxglove_laser_scan(msg: Any, log_time_ns: int, topic: str) -> ScanRecord:
+    # JSON has no NaN: a beam without a value is null there.
+    ranges = [math.nan if v is None else v for v in _get(msg, "ranges", ()) or ()]
+    start, end = float(_get(msg, "start_angle", 0.0)), float(_get(msg, "end_angle", 0.0))
+    # Foxglove gives the first and last bearing; one beam has no increment to give.
+    inc = (end - start) / (len(ranges) - 1) if len(ranges) > 1 else math.nan
+    pose = _get(msg, "pose")
+    origin = None
+    if pose:
+        origin = _pose(_get(pose, "position", {}), _get(pose, "orientation", {}))
+    return scan_record(
+        topic,
+        _foxglove_stamp(msg, log_time_ns),
+        str(_get(msg, "frame_id", "")),
+        ranges,
+        start,
+        end,
+        inc,
+        (_FOXGLOVE_RANGE_MIN, math.inf),
+        origin,
+    )
+
+
 ADAPTERS: dict[str, Adapter] = {
     "sensor_msgs/msg/Image": _ros_image,
     "sensor_msgs/msg/CompressedImage": _ros_compressed_image,
     "sensor_msgs/msg/CameraInfo": _ros_camera_info,
     "sensor_msgs/msg/Imu": _ros_imu,
+    "sensor_msgs/msg/LaserScan": _ros_laser_scan,
     "nav_msgs/msg/Odometry": _ros_odometry,
     "geometry_msgs/msg/PoseStamped": _ros_pose_stamped,
     "geometry_msgs/msg/PoseWithCovarianceStamped": _ros_pose_with_covariance_stamped,
@@ -531,6 +649,7 @@ ADAPTERS: dict[str, Adapter] = {
     "foxglove.PoseInFrame": _foxglove_pose_in_frame,
     "foxglove.FrameTransform": _foxglove_frame_transform,
     "foxglove.FrameTransforms": _foxglove_frame_transforms,
+    "foxglove.LaserScan": _foxglove_laser_scan,
     LANDMARK_SCHEMA_NAME: landmark_frame,
 }
 """Adapters keyed by normalised schema name (see :func:`normalize_schema_name`)."""

@@ -38,7 +38,7 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from operator import itemgetter
 from pathlib import Path
-from typing import BinaryIO
+from typing import BinaryIO, Protocol
 
 from mcap.data_stream import ReadDataStream
 from mcap.records import Channel, ChunkIndex, Schema, Statistics
@@ -83,6 +83,31 @@ _NO_END = 1 << 64
 
 _StreamEntry = tuple[int, int, int, int, bytes]
 """(log time, channel id, sequence, publish time, data) of a message read front to back."""
+
+
+class MessageLog(Protocol):
+    """What :class:`~slamcli.formats.mcap.source.McapSource` reads a log through: channels
+    with their schemas, per-channel statistics, undecoded messages in log-time order and a
+    health report. :class:`McapLog` is one; the ROS bag readers in
+    :mod:`slamcli.formats.rosbag` are others."""
+
+    @property
+    def health(self) -> LogHealth:
+        """What reading found wrong so far (complete after a full pass)."""
+        ...
+
+    def channels(self) -> dict[int, ChannelInfo]: ...
+
+    def stats(self) -> dict[int, ChannelStats]: ...
+
+    def messages(
+        self,
+        topics: Collection[str] | None = None,
+        start_ns: int | None = None,
+        end_ns: int | None = None,
+    ) -> Iterator[RawMessage]: ...
+
+    def close(self) -> None: ...
 
 
 class McapLog(Closing):
@@ -244,7 +269,7 @@ class McapLog(Closing):
                 self.path,
                 f"not an MCAP file: expected the magic bytes {MAGIC.hex(' ')} at byte 0, "
                 f"found {head.hex(' ')}",
-                hint="check the path; a ROS 2 .db3 bag needs 'ros2 bag convert' to MCAP first",
+                hint="check the path; ROS 1 .bag files and ROS 2 bag folders are read as bags",
             )
         footer = read_footer(self._file, self._size)
         if footer is None:

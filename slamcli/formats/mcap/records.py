@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from slamcli.types import PinholeCamera
+from slamcli.types import PinholeCamera, ScanFrame
 
 
 @dataclass(frozen=True)
@@ -175,3 +175,21 @@ class TwistRecord:
     stamp_ns: int
     v: float
     omega: float
+
+
+@dataclass(frozen=True)
+class ScanRecord:
+    """A decoded laser scan, before its mounting on the body is known.
+
+    ``scan.body_from_sensor`` is still zero: the source finds it in tf from ``frame_id``.
+    ``frame_from_scan`` is the (4, 4) float64 pose of the scan's origin in ``frame_id``
+    (Foxglove's ``pose`` field), None where the message has none (ROS: the origin is the frame).
+    """
+
+    frame_id: str
+    scan: ScanFrame
+    frame_from_scan: NDArray[np.float64] | None = None
+
+    @property
+    def stamp_ns(self) -> int:
+        return self.scan.stamp_ns

@@ -1,7 +1,7 @@
 """MCAP logs as a :class:`~slamcli.formats.base.Source`: topic selection, sync, ground truth.
 
-Topics are chosen per role (colour, depth, camera, odometry, landmarks, ground truth, IMU): a
-flag names one, otherwise the one topic of the right type is taken; with none or several the
+Topics are chosen per role (colour, depth, camera, odometry, landmarks, scans, ground truth,
+IMU): a flag names one, otherwise the one topic of the right type is taken; with none or several the
 source stops with :class:`~slamcli.errors.TopicNotFoundError` listing the candidates. Colour
 and depth are told apart by the encoding of their first message (16UC1/32FC1/compressedDepth =
 depth).
@@ -21,23 +21,32 @@ pose; ``Twist``/``TwistStamped``: v and omega) and landmark observations
 (``slamcli.LandmarkObservations``, see :mod:`slamcli.formats.mcap.observations`) come out in
 the order of their own stamps, odometry first at equal stamps, even where a detector's messages
 were logged late: a frame waits until every stream read has passed its stamp (at most
-``_ORDER_BUFFER`` frames wait).
+:data:`~slamcli.formats.mcap.ordering.ORDER_BUFFER` frames wait).
+
+Laser scans (``sensor_msgs/msg/LaserScan``, ROS 1 or 2, and ``foxglove.LaserScan``) join that
+order, after odometry at equal stamps. A scan whose ranges do not fit its angles, or whose angle
+increment is zero, is skipped and counted like an undecodable message (the warning names the
+topic and the message's index in it). Each scan's mounting on the body comes from tf
+(:mod:`slamcli.formats.mcap.mounting`): the scan's ``header.frame_id`` looked up in
+``/tf_static`` and ``/tf`` against the body, which is the odometry's ``child_frame_id`` (else
+the body tf moves, else ``base_footprint`` or ``base_link``; a log with none of these and no
+odometry has the scanner for its body); without such a transform the mounting is zero, with a
+warning, and ``info`` says so. With scans asked for and no odometry topic in the log,
+odometry comes from tf: the moving transform nearest above the scan's frame (usually ``odom ->
+base_link``), as poses without velocities.
 
 Ground truth comes from a pose topic (``--gt-topic``) or from tf (``--gt-frame``: the pose of
 that frame in the root of its tree). Before any frame has been read, :meth:`groundtruth` returns
 the poses as recorded. After frames have been read it is interpolated (SLERP) to the stamps of
 the frames read, so that it pairs one to one with an estimate made from them: the colour stamps
-when images were read; otherwise (a log without images, e.g. odometry and landmarks for the
-EKF) the odometry and landmark stamps. Stamps outside the ground truth's time span are left
-out. With ground truth, :meth:`start_pose` is its planar pose at the first odometry or landmark
-stamp, for pipelines that start there instead of at the origin.
+when images were read; the scan stamps when scans were; otherwise (e.g. odometry and landmarks
+for the EKF) the odometry and landmark stamps. Stamps outside the ground truth's time span are
+left out. With ground truth, :meth:`start_pose` is its planar pose at the first odometry,
+landmark or scan stamp, for pipelines that start there instead of at the origin.
 """
 
 from __future__ import annotations
 
-import bisect
-import heapq
-import itertools
 import logging
 from collections.abc import Callable, Collection, Iterator
 from pathlib import Path
@@ -49,18 +58,31 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError, InputError, TopicNotFoundError
 from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
-from slamcli.formats.mcap.adapters import Adapter, adapter_for, normalize_schema_name
+from slamcli.formats.mcap.adapters import Adapter, adapter_for, is_static_tf_topic
 from slamcli.formats.mcap.decode import DecodeError, decoder_for
-from slamcli.formats.mcap.observations import SCHEMA_NAME as LANDMARK_SCHEMA_NAME
-from slamcli.formats.mcap.reader import DEFAULT_MAX_CHUNK_BYTES, McapLog
+from slamcli.formats.mcap.mounting import ScanMounter
+from slamcli.formats.mcap.ordering import MOTION_RANK, MotionFrame, StampOrder, StreamPairer
+from slamcli.formats.mcap.reader import DEFAULT_MAX_CHUNK_BYTES, McapLog, MessageLog
 from slamcli.formats.mcap.records import (
     CameraInfoRecord,
     ChannelInfo,
     ImageRecord,
     PoseRecord,
+    ScanRecord,
+    TransformRecord,
     TwistRecord,
 )
 from slamcli.formats.mcap.tf import moving_frame_poses
+from slamcli.formats.mcap.topics import (
+    CAMERA_SCHEMAS,
+    IMAGE_SCHEMAS,
+    LANDMARK_SCHEMAS,
+    SCAN_SCHEMAS,
+    TF_SCHEMAS,
+    TopicChooser,
+    rate,
+    stream_kind,
+)
 from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.text import format_stamp
 from slamcli.geometry import interpolate_planar, interpolate_poses, se3_to_planar
@@ -73,47 +95,20 @@ from slamcli.types import (
     PinholeCamera,
     ProgressFn,
     RgbdFrame,
+    ScanFrame,
     Trajectory,
 )
 
 log = logging.getLogger(__name__)
 
 
-IMAGE_SCHEMAS = frozenset(
-    {
-        "sensor_msgs/msg/Image",
-        "sensor_msgs/msg/CompressedImage",
-        "foxglove.RawImage",
-        "foxglove.CompressedImage",
-    }
-)
-CAMERA_SCHEMAS = frozenset({"sensor_msgs/msg/CameraInfo", "foxglove.CameraCalibration"})
-POSE_SCHEMAS = frozenset(
-    {
-        "geometry_msgs/msg/PoseStamped",
-        "geometry_msgs/msg/PoseWithCovarianceStamped",
-        "nav_msgs/msg/Odometry",
-        "foxglove.PoseInFrame",
-    }
-)
-ODOM_SCHEMAS = frozenset(
-    {"nav_msgs/msg/Odometry", "geometry_msgs/msg/Twist", "geometry_msgs/msg/TwistStamped"}
-)
-TF_SCHEMAS = frozenset(
-    {"tf2_msgs/msg/TFMessage", "foxglove.FrameTransform", "foxglove.FrameTransforms"}
-)
-IMU_SCHEMAS = frozenset({"sensor_msgs/msg/Imu"})
-LANDMARK_SCHEMAS = frozenset({LANDMARK_SCHEMA_NAME})
-FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu")
+FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu", "scan")
 
-_FORCE_FLUSH = 32
-"""Buffered images at which pairing is settled even without a safe gap (very dense streams)."""
+_StreamPairer = StreamPairer
+"""The pairer under the name tests import it by."""
 START_POSE_MAX_WAIT_S = 30.0
 """``start_pose`` takes the first ground-truth pose if it is at most this late (the robot has
 barely moved in a log's first seconds); as :mod:`slamcli.formats.landmarks` does."""
-_ORDER_BUFFER = 10_000
-"""Odometry/landmark frames held for stamp order at most; beyond it the oldest goes out (a
-stream that stopped, or stamps on clocks far apart)."""
 
 
 class McapSource(SourceBase):
@@ -121,8 +116,9 @@ class McapSource(SourceBase):
 
     Args:
         path: the ``.mcap`` file.
-        rgb_topic, depth_topic, camera_info_topic, odom_topic, landmark_topic, gt_topic: topic
-            choices; None picks the one topic of the right type when it is needed.
+        rgb_topic, depth_topic, camera_info_topic, odom_topic, landmark_topic, scan_topic,
+            gt_topic: topic choices; None picks the one topic of the right type when it is
+            needed.
         gt_frame: take ground truth from tf as the pose of this frame in its tree's root.
         max_dt, dt_offset: colour/depth pairing tolerance and depth stamp offset, seconds.
         camera, fx, fy, cx, cy: camera when the log has no calibration topic (see
@@ -149,6 +145,7 @@ class McapSource(SourceBase):
         "camera_info_topic",
         "odom_topic",
         "landmark_topic",
+        "scan_topic",
         "gt_topic",
         "gt_frame",
     )
@@ -178,6 +175,7 @@ class McapSource(SourceBase):
         camera_info_topic: str | None = None,
         odom_topic: str | None = None,
         landmark_topic: str | None = None,
+        scan_topic: str | None = None,
         gt_topic: str | None = None,
         gt_frame: str | None = None,
         max_chunk_bytes: int = DEFAULT_MAX_CHUNK_BYTES,
@@ -199,15 +197,19 @@ class McapSource(SourceBase):
             "camera": camera_info_topic,
             "odometry": odom_topic,
             "landmarks": landmark_topic,
+            "scan": scan_topic,
             "groundtruth": gt_topic,
         }
         self.gt_frame = gt_frame
         self.stats = ReadStats()
-        self.log = McapLog(self.path, strict=strict, max_chunk_bytes=max_chunk_bytes)
+        self.log: MessageLog = self._open_log(max_chunk_bytes)
         self._channels = {c.topic: c for c in self.log.channels().values()}
-        self._schema = {t: normalize_schema_name(c.schema_name) for t, c in self._channels.items()}
         self._probes: dict[str, ImageRecord | None] = {}
-        self._chosen: dict[str, str | None] = {}
+        self._topics = TopicChooser(
+            self.path, self._channels, self._want, self.log.stats, self._probe
+        )
+        self._schema = self._topics.schema
+        self._mounter: ScanMounter | None = None
         self._camera: tuple[PinholeCamera, str] | None = None
         self._frame_stamps: list[int] = []
         self._motion_stamps: list[int] = []
@@ -221,10 +223,14 @@ class McapSource(SourceBase):
     def close(self) -> None:
         self.log.close()
 
+    def _open_log(self, max_chunk_bytes: int) -> MessageLog:
+        """The reader of the log's messages (the ROS bag sources read theirs otherwise)."""
+        return McapLog(self.path, strict=self.strict, max_chunk_bytes=max_chunk_bytes)
+
     # -- topics ------------------------------------------------------------------------------
 
     def _topics_of(self, schemas: Collection[str]) -> list[str]:
-        return sorted(t for t, s in self._schema.items() if s in schemas)
+        return self._topics.of(schemas)
 
     def _probe(self, topic: str) -> ImageRecord | None:
         """The first image of a topic (None when it has none or it cannot be decoded)."""
@@ -241,90 +247,14 @@ class McapSource(SourceBase):
             self._probes[topic] = record
         return self._probes[topic]
 
-    def _image_role(self, topic: str) -> str:
-        probe = self._probe(topic)
-        if probe is not None:
-            return "depth" if probe.kind == "depth" else "rgb"
-        return "depth" if "depth" in topic.lower() else "rgb"
-
-    def _candidate_row(self, topic: str) -> list[str]:
-        ch = self._channels[topic]
-        encoding = ""
-        if self._schema[topic] in IMAGE_SCHEMAS:
-            probe = self._probe(topic)
-            encoding = probe.encoding if probe is not None else "?"
-        st = self._stats().get(ch.id)
-        count = st.count if st else 0
-        rate = _rate(st.count, st.first_ns, st.last_ns) if st else None
-        return [topic, ch.schema_name, encoding, str(count), f"{rate:.1f}" if rate else "-"]
-
-    def _stats(self) -> dict[int, Any]:
-        return self.log.stats()
-
     def topic(self, role: str, required: bool = True) -> str | None:
-        """The topic used for ``role`` (rgb, depth, camera, odometry, landmarks, groundtruth,
-        imu).
+        """The topic used for ``role`` (rgb, depth, camera, odometry, landmarks, scan,
+        groundtruth, imu).
 
         Without a fitting topic, ``required`` raises TopicNotFoundError listing the candidates,
         even after an optional look-up (``start_pose``, ``info``) found none.
         """
-        if role in self._chosen and (self._chosen[role] is not None or not required):
-            return self._chosen[role]
-        schemas, flag = {
-            "rgb": (IMAGE_SCHEMAS, "--rgb-topic"),
-            "depth": (IMAGE_SCHEMAS, "--depth-topic"),
-            "camera": (CAMERA_SCHEMAS, "--camera-info-topic"),
-            "odometry": (ODOM_SCHEMAS, "--odom-topic"),
-            "landmarks": (LANDMARK_SCHEMAS, "--landmark-topic"),
-            "groundtruth": (POSE_SCHEMAS, "--gt-topic"),
-            "imu": (IMU_SCHEMAS, "a single Imu topic"),
-        }[role]
-        typed = self._topics_of(schemas)
-        if role in ("rgb", "depth"):
-            candidates = [t for t in typed if self._image_role(t) == role]
-        else:
-            candidates = typed
-        wanted = self._want.get(role)
-        chosen: str | None = None
-        if wanted is not None:
-            if wanted not in self._channels:
-                raise TopicNotFoundError(
-                    f"{self.path}: no topic {wanted} ({flag})",
-                    hint=f"choose one of the {role} candidates below",
-                    candidates=[self._candidate_row(t) for t in typed],
-                )
-            if self._schema[wanted] not in schemas:
-                raise TopicNotFoundError(
-                    f"{self.path}: {flag} {wanted} has type {self._channels[wanted].schema_name}, "
-                    f"not one of {', '.join(sorted(schemas))}",
-                    candidates=[self._candidate_row(t) for t in typed],
-                )
-            chosen = wanted
-        elif len(candidates) == 1:
-            chosen = candidates[0]
-        elif len(candidates) > 1 and role == "groundtruth":
-            # Odometry is a pose topic too, but rarely the ground truth a user means.
-            non_odom = [t for t in candidates if self._schema[t] != "nav_msgs/msg/Odometry"]
-            if len(non_odom) == 1:
-                chosen = non_odom[0]
-        if chosen is None and (required or len(candidates) > 1):
-            what = "no" if not candidates else f"{len(candidates)}"
-            listed = candidates or typed
-            hint = "the table lists the topics of a fitting type"
-            if not listed:
-                listed = sorted(self._channels)
-                hint = (
-                    f"no topic has a fitting type ({', '.join(sorted(schemas))}); "
-                    "the table lists the log's topics"
-                )
-            raise TopicNotFoundError(
-                f"{self.path}: {what} {role} topic{'s' if len(candidates) != 1 else ''} "
-                f"found; choose one with {flag}",
-                hint=hint,
-                candidates=[self._candidate_row(t) for t in listed],
-            )
-        self._chosen[role] = chosen
-        return chosen
+        return self._topics.choose(role, required)
 
     # -- camera --------------------------------------------------------------------------------
 
@@ -371,6 +301,17 @@ class McapSource(SourceBase):
             return self._adapt(raw.channel, raw.data, raw.log_time_ns)
         return None
 
+    def _first_readable(self, topic: str) -> Any:
+        """The first record of ``topic`` that decodes (None: none does). A probe: unreadable
+        messages are passed over here and counted when frames are read."""
+        for raw in self.log.messages([topic]):
+            try:
+                return self._adapt(raw.channel, raw.data, raw.log_time_ns)
+            except DecodeError:
+                if topic not in self._decoders:
+                    raise
+        return None
+
     # -- decoding ------------------------------------------------------------------------------
 
     def _adapt(self, channel: ChannelInfo, data: bytes, log_time_ns: int) -> Any:
@@ -388,13 +329,18 @@ class McapSource(SourceBase):
 
     def _records(self, topics: Collection[str]) -> Iterator[tuple[str, Any]]:
         """(topic, record) in log-time order; undecodable messages skipped and counted."""
+        index: dict[str, int] = {}
         for raw in self.log.messages(list(topics)):
+            n = index[raw.channel.topic] = index.get(raw.channel.topic, -1) + 1
             try:
                 rec = self._adapt(raw.channel, raw.data, raw.log_time_ns)
             except DecodeError as exc:
                 if raw.channel.topic not in self._decoders:
                     raise  # the channel cannot be decoded at all: its error names the channel
-                where = f"log time {format_stamp(raw.log_time_ns)} s, sequence {raw.sequence}"
+                where = (
+                    f"message {n} of {raw.channel.topic}, log time "
+                    f"{format_stamp(raw.log_time_ns)} s, sequence {raw.sequence}"
+                )
                 if self.strict:
                     raise DecodeError(f"{exc.msg} ({where})", hint=exc.hint) from exc
                 name = f"{raw.channel.topic}@{raw.log_time_ns}"
@@ -414,28 +360,43 @@ class McapSource(SourceBase):
     # -- frames --------------------------------------------------------------------------------
 
     def frames(self, kinds: Collection[str] = ("rgbd",)) -> Iterator[Frame]:
-        """Frames of the given kinds (rgbd, image, odometry, landmarks, imu) in time order.
+        """Frames of the given kinds (rgbd, image, odometry, landmarks, imu, scan) in time order.
 
-        Odometry and landmark frames come in the order of their stamps, odometry first at equal
-        stamps (see the module docstring); images and IMU readings in log-time order.
+        Odometry, landmark and scan frames come in the order of their stamps, in that order at
+        equal stamps (see the module docstring); images and IMU readings in log-time order.
         """
         unknown = set(kinds) - set(FRAME_KINDS)
         if unknown:
-            raise ConfigError(f"mcap sources do not provide {', '.join(sorted(unknown))} frames")
+            raise ConfigError(
+                f"{self.format_name} sources do not provide {', '.join(sorted(unknown))} frames"
+            )
         roles: dict[str, str] = {}
         if "rgbd" in kinds or "image" in kinds:
             roles[str(self.topic("rgb"))] = "rgb"
         if "rgbd" in kinds:
             roles[str(self.topic("depth"))] = "depth"
         if "odometry" in kinds:
-            roles[str(self.topic("odometry"))] = "odometry"
+            # With scans, tf may stand in for a missing odometry topic.
+            odometry = self.topic("odometry", required="scan" not in kinds)
+            if odometry is not None:
+                roles[odometry] = "odometry"
         if "landmarks" in kinds:
             roles[str(self.topic("landmarks"))] = "landmarks"
         if "imu" in kinds:
             roles[str(self.topic("imu"))] = "imu"
+        scans = None
+        if "scan" in kinds:
+            roles[str(self.topic("scan"))] = "scan"
+            scans = self._scans()
+            if "odometry" in kinds and "odometry" not in roles.values():
+                if scans.edge is None:
+                    self.topic("odometry")  # raises: no odometry topic, and none in tf either
+                dynamic = [t for t in self._topics_of(TF_SCHEMAS) if not is_static_tf_topic(t)]
+                roles.update(dict.fromkeys(dynamic, "tf odometry"))
         camera = self.camera()[0] if ("rgbd" in kinds or "image" in kinds) else None
-        pairer = _StreamPairer(self.max_dt_ns, self.dt_offset_ns) if "rgbd" in kinds else None
-        order = _StampOrder([r for r in roles.values() if r in _MOTION_RANK])
+        pairer = StreamPairer(self.max_dt_ns, self.dt_offset_ns) if "rgbd" in kinds else None
+        streams = {"odometry" if r == "tf odometry" else r for r in roles.values()}
+        order = StampOrder(sorted(streams & MOTION_RANK.keys()))
         # Odometry and landmarks are what is read when there are no images (the EKF): count them.
         count_motion = camera is None
         self._frame_stamps = []
@@ -452,20 +413,45 @@ class McapSource(SourceBase):
                 yield from self._motion(order.add(role, _odometry_frame(rec)), count_motion)
             elif role == "landmarks" and isinstance(rec, LandmarkFrame):
                 yield from self._motion(order.add(role, rec), count_motion)
+            elif role == "scan" and isinstance(rec, ScanRecord) and scans is not None:
+                yield from self._motion(order.add(role, scans.mount(rec)), count_motion)
+            elif role == "tf odometry" and isinstance(rec, TransformRecord) and scans is not None:
+                for odo in scans.odometry(rec):
+                    yield from self._motion(order.add("odometry", odo), count_motion)
             elif role == "imu" and isinstance(rec, ImuFrame):
                 yield rec
         yield from self._motion(order.flush(), count_motion)
         if pairer is not None and camera is not None:
             yield from self._emit(pairer.ready(final=True), camera)
 
-    def _motion(
-        self, frames: list[OdometryFrame | LandmarkFrame], count: bool
-    ) -> Iterator[OdometryFrame | LandmarkFrame]:
+    def _motion(self, frames: list[MotionFrame], count: bool) -> Iterator[MotionFrame]:
         for frame in frames:
             self._motion_stamps.append(frame.stamp_ns)
+            if isinstance(frame, ScanFrame):
+                self._frame_stamps.append(frame.stamp_ns)
             if count:
                 self.stats.read += 1
             yield frame
+
+    # -- scans ---------------------------------------------------------------------------------
+
+    def _scans(self) -> ScanMounter:
+        """What puts the scans on the body (see the module docstring), set up once."""
+        if self._mounter is None:
+            first = self._first_readable(str(self.topic("scan")))
+            try:
+                odometry = self.topic("odometry", required=False)
+            except TopicNotFoundError:
+                odometry = None  # several: the body comes from tf unless odometry is read
+            rec = self._first_readable(odometry) if odometry is not None else None
+            self._mounter = ScanMounter(
+                self.path,
+                (rec for _, rec in self._records(self._topics_of(TF_SCHEMAS))),
+                first.frame_id if isinstance(first, ScanRecord) else None,
+                odometry is not None,
+                rec.child_frame_id if isinstance(rec, PoseRecord) else "",
+            )
+        return self._mounter
 
     def _image_frame(self, rec: ImageRecord, camera: PinholeCamera | None) -> ImageFrame:
         self.stats.read += 1
@@ -500,8 +486,9 @@ class McapSource(SourceBase):
     def groundtruth(self) -> Trajectory | None:
         """Ground truth; after frames were read, interpolated to their stamps.
 
-        The colour stamps when images were read, else the odometry and landmark stamps; the
-        poses as recorded when no frame has been read (see the module docstring).
+        The colour stamps when images were read, the scan stamps when scans were, else the
+        odometry and landmark stamps; the poses as recorded when no frame has been read (see the
+        module docstring).
         """
         samples = self._groundtruth_samples()
         if samples is None:
@@ -519,8 +506,8 @@ class McapSource(SourceBase):
     def start_pose(self) -> NDArray[np.float64] | None:
         """(3,) float64 x (m), y (m), yaw (rad) of the ground truth at the first frame's stamp.
 
-        The first frame is the earliest odometry or landmark frame: of the frames already read,
-        else of the first readable message of each topic. The ground truth is interpolated
+        The first frame is the earliest odometry, landmark or scan frame: of the frames already
+        read, else of the first readable message of each topic. The ground truth is interpolated
         there (:func:`~slamcli.geometry.interpolate_planar`); when it starts after that stamp
         by at most :data:`START_POSE_MAX_WAIT_S`, its first pose is taken. None without
         ground truth, without odometry and landmarks, or when the ground truth does not
@@ -554,21 +541,16 @@ class McapSource(SourceBase):
         if self._motion_stamps:
             return min(self._motion_stamps)
         firsts = []
-        for role in ("odometry", "landmarks"):
-            topic = self.topic(role, required=False)
-            if topic is None:
-                continue
-            # A probe: unreadable messages are passed over here and counted when frames are read.
-            for raw in self.log.messages([topic]):
-                try:
-                    rec = self._adapt(raw.channel, raw.data, raw.log_time_ns)
-                except DecodeError:
-                    if topic not in self._decoders:
-                        raise
-                    continue
-                if isinstance(rec, PoseRecord | TwistRecord | LandmarkFrame):
-                    firsts.append(rec.stamp_ns)
-                    break
+        for role in ("odometry", "landmarks", "scan"):
+            try:
+                topic = self.topic(role, required=False)
+            except TopicNotFoundError:
+                if role != "scan":
+                    raise
+                continue  # several scan topics: a pipeline reading scans names one
+            rec = self._first_readable(topic) if topic is not None else None
+            if isinstance(rec, PoseRecord | TwistRecord | LandmarkFrame | ScanRecord):
+                firsts.append(rec.stamp_ns)
         return min(firsts) if firsts else None
 
     def _groundtruth_samples(self) -> Trajectory | None:
@@ -592,7 +574,7 @@ class McapSource(SourceBase):
     # -- info ------------------------------------------------------------------------------------
 
     def info(self, deep: bool = False, progress: ProgressFn | None = None) -> SourceInfo:
-        stats = self._stats()
+        stats = self.log.stats()
         streams = []
         problems: list[str] = []
         undecodable: dict[str, str] = {}
@@ -605,15 +587,20 @@ class McapSource(SourceBase):
                     undecodable[topic] = f"type {ch.schema_name} is not read by slamcli"
             except DecodeError as exc:
                 undecodable[topic] = exc.msg
+            detail = f"{ch.schema_name} ({ch.message_encoding})"
+            if self._schema[topic] in SCAN_SCHEMAS and topic not in undecodable:
+                first = self._first_readable(topic)
+                if isinstance(first, ScanRecord):
+                    detail += f", {first.scan.ranges_m.size} beams"
             streams.append(
                 StreamInfo(
                     name=topic,
-                    kind=_kind(self._schema[topic]),
+                    kind=stream_kind(self._schema[topic]),
                     count=count,
-                    rate_hz=_rate(count, st.first_ns, st.last_ns) if st else None,
+                    rate_hz=rate(count, st.first_ns, st.last_ns) if st else None,
                     start_s=st.first_ns * 1e-9 if st and st.first_ns is not None else None,
                     end_s=st.last_ns * 1e-9 if st and st.last_ns is not None else None,
-                    detail=f"{ch.schema_name} ({ch.message_encoding})",
+                    detail=detail,
                 )
             )
         frames = 0
@@ -626,7 +613,9 @@ class McapSource(SourceBase):
             details["rgb_topic"], details["depth_topic"] = rgb, depth
             frames = self._count_pairs(deep, progress)
         except TopicNotFoundError as exc:
-            if self._topics_of(IMAGE_SCHEMAS) or not self._topics_of(LANDMARK_SCHEMAS):
+            if self._topics_of(IMAGE_SCHEMAS) or not self._topics_of(
+                LANDMARK_SCHEMAS | SCAN_SCHEMAS
+            ):
                 problems.append(f"no RGB-D frames: {exc.msg}")
         try:
             landmarks = self.topic("landmarks", required=False)
@@ -639,13 +628,21 @@ class McapSource(SourceBase):
                     details["odometry_topic"] = odometry
         except TopicNotFoundError as exc:
             problems.append(f"landmarks: {exc.msg}")
+        try:
+            scan_details, scan_problems = self._scan_info(deep)
+            details.update(scan_details)
+            problems.extend(scan_problems)
+        except InputError as exc:
+            problems.append(f"scans: {exc.msg}")
         gt_count = 0
         try:
             gt = self._groundtruth_samples()
             gt_count = len(gt) if gt is not None else 0
             if gt is not None:
                 details["groundtruth_from"] = (
-                    f"tf frame {self.gt_frame}" if self.gt_frame else self._chosen["groundtruth"]
+                    f"tf frame {self.gt_frame}"
+                    if self.gt_frame
+                    else self._topics.chosen["groundtruth"]
                 )
         except InputError as exc:
             problems.append(f"ground truth: {exc.msg}")
@@ -667,7 +664,7 @@ class McapSource(SourceBase):
         if self.stats.skipped:
             details["unreadable"] = list(self.stats.skipped_names)
         return SourceInfo(
-            format="mcap",
+            format=self.format_name,
             path=str(self.path),
             streams=streams,
             frames=frames,
@@ -677,6 +674,19 @@ class McapSource(SourceBase):
             problems=problems,
             details=details,
         )
+
+    def _scan_info(self, deep: bool) -> tuple[dict[str, Any], list[str]]:
+        """Details and problems of the scans (:meth:`ScanMounter.info`); with ``deep`` every
+        scan is read, so that bad ones are counted."""
+        scan = self.topic("scan", required=False)
+        if scan is None:
+            return {}, []
+        first = self._first_readable(scan)
+        out = self._scans().info(scan, first, self._topics.chosen.get("odometry"))
+        if deep:
+            for _ in self._records([scan]):
+                pass
+        return out
 
     def _count_pairs(self, deep: bool, progress: ProgressFn | None) -> int:
         """Paired RGB-D frames: by header stamps when ``deep``, else by log times."""
@@ -700,112 +710,6 @@ class McapSource(SourceBase):
             self.dt_offset_ns,
         )
         return len(first)
-
-
-_MOTION_RANK = {"odometry": 0, "landmarks": 1}
-"""Order of odometry and landmark frames at equal stamps."""
-
-
-class _StampOrder:
-    """Odometry and landmark frames of several streams put back into stamp order.
-
-    Each stream is taken to be in stamp order by itself (a stream that is not is sorted within
-    the buffer). A frame goes out once every stream has delivered a later stamp, so a detector
-    whose messages are logged late does not put its observations after later odometry.
-    """
-
-    def __init__(self, roles: Collection[str]) -> None:
-        self.newest: dict[str, int | None] = dict.fromkeys(roles)
-        self.heap: list[tuple[int, int, int, OdometryFrame | LandmarkFrame]] = []
-        self.count = 0
-
-    def add(
-        self, role: str, frame: OdometryFrame | LandmarkFrame
-    ) -> list[OdometryFrame | LandmarkFrame]:
-        """Take one frame; return the frames that can go out now, in order."""
-        heapq.heappush(self.heap, (frame.stamp_ns, _MOTION_RANK[role], self.count, frame))
-        self.count += 1
-        newest = self.newest[role]
-        self.newest[role] = frame.stamp_ns if newest is None else max(newest, frame.stamp_ns)
-        seen = [v for v in self.newest.values() if v is not None]
-        horizon = min(seen) if len(seen) == len(self.newest) else None
-        out = []
-        while self.heap and (
-            (horizon is not None and self.heap[0][0] < horizon) or len(self.heap) > _ORDER_BUFFER
-        ):
-            out.append(heapq.heappop(self.heap)[3])
-        return out
-
-    def flush(self) -> list[OdometryFrame | LandmarkFrame]:
-        """Every frame still held, in order."""
-        out = [heapq.heappop(self.heap)[3] for _ in range(len(self.heap))]
-        return out
-
-
-class _StreamPairer:
-    """TUM associate.py pairing of two image streams, settled as the streams advance."""
-
-    def __init__(self, max_dt_ns: int, offset_ns: int) -> None:
-        self.max_dt = max_dt_ns
-        self.offset = offset_ns
-        self.buf: dict[str, list[ImageRecord]] = {"rgb": [], "depth": []}
-        self.newest: dict[str, int | None] = {"rgb": None, "depth": None}
-
-    def add(self, role: str, rec: ImageRecord) -> None:
-        stamp = rec.stamp_ns + (self.offset if role == "depth" else 0)
-        buf = self.buf[role]
-        keys = [self._key(role, r) for r in buf]
-        buf.insert(bisect.bisect_right(keys, stamp), rec)
-        newest = self.newest[role]
-        self.newest[role] = stamp if newest is None else max(newest, stamp)
-
-    def _key(self, role: str, rec: ImageRecord) -> int:
-        return rec.stamp_ns + (self.offset if role == "depth" else 0)
-
-    def ready(self, final: bool = False) -> list[tuple[ImageRecord, ImageRecord]]:
-        rgb, depth = self.buf["rgb"], self.buf["depth"]
-        if not rgb or not depth:
-            if final:
-                rgb.clear()
-                depth.clear()
-            return []
-        if final:
-            cut = None
-        else:
-            newest = [v for v in self.newest.values() if v is not None]
-            horizon = min(newest) - self.max_dt
-            cut = self._safe_cut(horizon)
-            if cut is None and len(rgb) + len(depth) > _FORCE_FLUSH:
-                cut = horizon
-            if cut is None:
-                return []
-        take_r = [r for r in rgb if cut is None or r.stamp_ns < cut]
-        take_d = [d for d in depth if cut is None or self._key("depth", d) < cut]
-        i, j = associate_stamps(
-            np.array([r.stamp_ns for r in take_r], dtype=np.int64),
-            np.array([d.stamp_ns for d in take_d], dtype=np.int64),
-            self.max_dt,
-            self.offset,
-        )
-        pairs = sorted(zip(i.tolist(), j.tolist(), strict=True))
-        out = [(take_r[a], take_d[b]) for a, b in pairs]
-        del rgb[: len(take_r)]
-        del depth[: len(take_d)]
-        return out
-
-    def _safe_cut(self, horizon: int) -> int | None:
-        """A time below ``horizon`` that no candidate pair spans (a gap of >= max_dt)."""
-        merged = sorted(
-            [r.stamp_ns for r in self.buf["rgb"]]
-            + [self._key("depth", d) for d in self.buf["depth"]]
-        )
-        cut = None
-        for a, b in itertools.pairwise(merged):
-            if b > horizon:
-                break
-            if b - a >= self.max_dt:
-                cut = b
-        return cut
 
 
 def _sibling_camera_topic(image_topic: str, camera_topics: list[str]) -> str | None:
@@ -836,24 +740,3 @@ def _trajectory(stamps: list[int], poses: list[Any], what: str) -> Trajectory | 
     if not keep.all():
         log.debug("%s: %d repeated stamps dropped", what, int((~keep).sum()))
     return Trajectory(s[keep], np.stack(poses)[order][keep])
-
-
-def _rate(count: int, first_ns: int | None, last_ns: int | None) -> float | None:
-    if count < 2 or first_ns is None or last_ns is None or last_ns <= first_ns:
-        return None
-    return (count - 1) / ((last_ns - first_ns) * 1e-9)
-
-
-def _kind(schema: str) -> str:
-    for kind, schemas in (
-        ("image", IMAGE_SCHEMAS),
-        ("camera", CAMERA_SCHEMAS),
-        ("tf", TF_SCHEMAS),
-        ("odometry", ODOM_SCHEMAS),
-        ("pose", POSE_SCHEMAS),
-        ("imu", IMU_SCHEMAS),
-        ("landmarks", LANDMARK_SCHEMAS),
-    ):
-        if schema in schemas:
-            return kind
-    return "other"

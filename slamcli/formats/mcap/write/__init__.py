@@ -1,15 +1,20 @@
-"""Writing MCAP logs: RGB-D sources and landmark runs as ROS 2 or Foxglove messages, run results.
+"""Writing MCAP logs: RGB-D and scan sources and landmark runs as ROS 2 or Foxglove messages, run
+results.
 
-Three writers share one small MCAP layer (:mod:`~slamcli.formats.mcap.write.layer`):
+Four writers share one small MCAP layer (:mod:`~slamcli.formats.mcap.write.layer`):
 
 * :func:`write_source_mcap` (:mod:`~slamcli.formats.mcap.write.source`) turns a source (a TUM
-  RGB-D folder) into a log a robot could have recorded. ``flavor="ros2"`` writes CDR messages
-  with ``ros2msg`` schemas (the full definition text with its dependencies, as ``ros2 bag
-  record`` stores it); ``flavor="foxglove"`` writes JSON messages with the official Foxglove JSON
-  schemas (``schema_encoding="jsonschema"``, ``message_encoding="json"``, binary fields base64
-  as Foxglove's JSON convention has it). The topics are listed in
-  :mod:`~slamcli.formats.mcap.write.messages`, the depth encodings in
+  RGB-D folder, a log of laser scans and odometry) into a log a robot could have recorded.
+  ``flavor="ros2"`` writes CDR messages with ``ros2msg`` schemas (the full definition text with
+  its dependencies, as ``ros2 bag record`` stores it); ``flavor="foxglove"`` writes JSON
+  messages with the official Foxglove JSON schemas (``schema_encoding="jsonschema"``,
+  ``message_encoding="json"``, binary fields base64 as Foxglove's JSON convention has it). The
+  topics are listed in :mod:`~slamcli.formats.mcap.write.messages`, the depth encodings in
   :mod:`~slamcli.formats.mcap.write.convert`.
+* :func:`write_scan_mcap` (:mod:`~slamcli.formats.mcap.write.scans`) writes laser scans and
+  odometry given in memory (``sensor_msgs/msg/LaserScan`` or ``foxglove.LaserScan``,
+  ``nav_msgs/msg/Odometry``, the mounting on ``/tf_static``); a source's scans are converted
+  with the same messages.
 * :func:`write_landmark_log` (:mod:`~slamcli.formats.mcap.write.landmarks`) turns a landmark run
   (a ``slamcli synth landmarks`` folder, or the same data in memory as a
   :class:`~slamcli.formats.landmarks.LandmarkLog`) into a log for ``slamcli run ekf``.
@@ -27,6 +32,7 @@ from slamcli.formats.mcap.write.layer import (
     CAMERA_FRAME,
     FLAVORS,
     IMU_FRAME,
+    LASER_FRAME,
     ODOM_FRAME,
     RESULT_CAMERA_FRAME,
     TOPIC_CAMERA_INFO,
@@ -43,7 +49,9 @@ from slamcli.formats.mcap.write.layer import (
     TOPIC_RESULT_MESH,
     TOPIC_RESULT_POINTS,
     TOPIC_RESULT_POSE,
+    TOPIC_SCAN,
     TOPIC_TF,
+    TOPIC_TF_STATIC,
     WORLD_FRAME,
     McapWriteSummary,
     check_choice,
@@ -55,6 +63,7 @@ from slamcli.formats.mcap.write.result import (
     write_result_log,
     write_result_mcap,
 )
+from slamcli.formats.mcap.write.scans import laser_scan_message, write_scan_mcap
 from slamcli.formats.mcap.write.source import (
     DEPTH_ENCODINGS,
     IMAGE_COMPRESSIONS,
@@ -69,6 +78,7 @@ __all__ = [
     "FLAVORS",
     "IMAGE_COMPRESSIONS",
     "IMU_FRAME",
+    "LASER_FRAME",
     "ODOM_FRAME",
     "RESULT_CAMERA_FRAME",
     "TOPIC_CAMERA_INFO",
@@ -85,7 +95,9 @@ __all__ = [
     "TOPIC_RESULT_MESH",
     "TOPIC_RESULT_POINTS",
     "TOPIC_RESULT_POSE",
+    "TOPIC_SCAN",
     "TOPIC_TF",
+    "TOPIC_TF_STATIC",
     "WORLD_FRAME",
     "McapWriteSummary",
     "check_choice",
@@ -93,10 +105,12 @@ __all__ = [
     "depth_to_millimetres",
     "foxglove_schema",
     "grid_message",
+    "laser_scan_message",
     "mesh_message",
     "point_cloud_message",
     "write_landmark_log",
     "write_result_log",
     "write_result_mcap",
+    "write_scan_mcap",
     "write_source_mcap",
 ]

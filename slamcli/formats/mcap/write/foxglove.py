@@ -74,11 +74,19 @@ def write_pose_and_tf(
     t, q = pose_parts(world_from_child)
     pose = {"timestamp": fox_time(stamp_ns), "frame_id": WORLD_FRAME, "pose": fox_pose(t, q)}
     put_json(mcap_log, pose_topic, "PoseInFrame", stamp_ns, pose)
-    tf = {
+    tf = frame_transform(stamp_ns, WORLD_FRAME, child_frame, world_from_child)
+    put_json(mcap_log, TOPIC_TF, "FrameTransform", stamp_ns, tf)
+
+
+def frame_transform(
+    stamp_ns: int, parent: str, child: str, parent_from_child: NDArray[np.float64]
+) -> dict[str, Any]:
+    """A ``foxglove.FrameTransform`` of a (4, 4) ``parent_from_child`` pose."""
+    t, q = pose_parts(parent_from_child)
+    return {
         "timestamp": fox_time(stamp_ns),
-        "parent_frame_id": WORLD_FRAME,
-        "child_frame_id": child_frame,
+        "parent_frame_id": parent,
+        "child_frame_id": child,
         "translation": {"x": t[0], "y": t[1], "z": t[2]},
         "rotation": {"x": q[0], "y": q[1], "z": q[2], "w": q[3]},
     }
-    put_json(mcap_log, TOPIC_TF, "FrameTransform", stamp_ns, tf)

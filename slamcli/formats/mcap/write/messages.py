@@ -13,6 +13,9 @@ foxglove type:
 - ``/groundtruth``: ``geometry_msgs/msg/PoseStamped`` / ``foxglove.PoseInFrame``, in ``world``
 - ``/tf`` (foxglove): ``foxglove.FrameTransform`` world -> ``camera_color_optical_frame``
 - ``/imu`` (ros2; Foxglove has no IMU schema): ``sensor_msgs/msg/Imu``, acceleration only
+
+The messages of scan logs (laser scans, odometry poses, tf) are in
+:mod:`~slamcli.formats.mcap.write.scans`; their ROS 2 messages are built here.
 """
 
 from __future__ import annotations
@@ -52,7 +55,7 @@ from slamcli.formats.mcap.write.layer import (
     WORLD_FRAME,
     LogWriter,
 )
-from slamcli.types import ImuFrame, PinholeCamera, RgbdFrame
+from slamcli.types import ImuFrame, PinholeCamera, RgbdFrame, ScanFrame
 
 
 class FrameWriter(abc.ABC):
@@ -185,20 +188,74 @@ class Ros2Writer(FrameWriter):
         self, stamp_ns: int, x: float, y: float, yaw: float, v: float, omega: float
     ) -> None:
         """A ``nav_msgs/msg/Odometry`` on ``/odom``: planar pose in ``odom``, twist v and omega."""
-        pose = self._pose((x, y, 0.0), (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2)))
+        q = (0.0, 0.0, math.sin(yaw / 2), math.cos(yaw / 2))
+        self.odometry_pose(TOPIC_ODOM, stamp_ns, (x, y, 0.0), q, v, omega)
+
+    def odometry_pose(
+        self,
+        topic: str,
+        stamp_ns: int,
+        t: Sequence[float],
+        q: Sequence[float],
+        v: float,
+        omega: float,
+        frames: tuple[str, str] = (ODOM_FRAME, BODY_FRAME),
+    ) -> None:
+        """A ``nav_msgs/msg/Odometry``: the pose (translation m, xyzw quaternion) of
+        ``frames[1]`` in ``frames[0]``, twist ``linear.x`` = v (m/s), ``angular.z`` = omega
+        (rad/s)."""
         vector3 = self.t["geometry_msgs/msg/Vector3"]
         twist = self.t["geometry_msgs/msg/Twist"](
             linear=vector3(x=float(v), y=0.0, z=0.0), angular=vector3(x=0.0, y=0.0, z=float(omega))
         )
+        pose = self._pose(t, q)
         msg = self.t["nav_msgs/msg/Odometry"](
-            header=self._header(stamp_ns, ODOM_FRAME),
-            child_frame_id=BODY_FRAME,
+            header=self._header(stamp_ns, frames[0]),
+            child_frame_id=frames[1],
             pose=self.t["geometry_msgs/msg/PoseWithCovariance"](pose=pose, covariance=np.zeros(36)),
             twist=self.t["geometry_msgs/msg/TwistWithCovariance"](
                 twist=twist, covariance=np.zeros(36)
             ),
         )
-        self._put(TOPIC_ODOM, stamp_ns, msg)
+        self._put(topic, stamp_ns, msg)
+
+    def transform(
+        self,
+        topic: str,
+        stamp_ns: int,
+        frames: tuple[str, str],
+        parent_from_child: NDArray[np.float64],
+    ) -> None:
+        """A ``tf2_msgs/msg/TFMessage`` of one transform: ``frames`` are (parent, child)."""
+        (x, y, z), (qx, qy, qz, qw) = pose_parts(parent_from_child)
+        vector3 = self.t["geometry_msgs/msg/Vector3"]
+        transform = self.t["geometry_msgs/msg/TransformStamped"](
+            header=self._header(stamp_ns, frames[0]),
+            child_frame_id=frames[1],
+            transform=self.t["geometry_msgs/msg/Transform"](
+                translation=vector3(x=x, y=y, z=z),
+                rotation=self.t["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw),
+            ),
+        )
+        self._put(topic, stamp_ns, self.t["tf2_msgs/msg/TFMessage"](transforms=[transform]))
+
+    def laser_scan(self, topic: str, frame_id: str, scan: ScanFrame) -> None:
+        """A ``sensor_msgs/msg/LaserScan`` of a sweep in ``frame_id``; its angles and range
+        limits are float32 there, its ranges as they are."""
+        n = len(scan.ranges_m)
+        msg = self.t["sensor_msgs/msg/LaserScan"](
+            header=self._header(scan.stamp_ns, frame_id),
+            angle_min=float(scan.angle_min_rad),
+            angle_max=float(scan.angle_min_rad + (n - 1) * scan.angle_increment_rad),
+            angle_increment=float(scan.angle_increment_rad),
+            time_increment=0.0,
+            scan_time=0.0,
+            range_min=float(scan.range_min_m),
+            range_max=float(scan.range_max_m),
+            ranges=np.asarray(scan.ranges_m, dtype=np.float32),
+            intensities=np.zeros(0, dtype=np.float32),
+        )
+        self._put(topic, scan.stamp_ns, msg)
 
     def imu(self, frame: ImuFrame) -> bool:
         vector3 = self.t["geometry_msgs/msg/Vector3"]

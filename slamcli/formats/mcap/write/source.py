@@ -1,5 +1,7 @@
-"""A source's RGB-D frames, camera, ground truth and IMU readings written as an MCAP log: a log
-a robot could have recorded (topics and encodings in :mod:`~slamcli.formats.mcap.write.messages`).
+"""A source's RGB-D frames, camera, ground truth, IMU readings, laser scans and odometry written
+as an MCAP log: a log a robot could have recorded (topics and encodings in
+:mod:`~slamcli.formats.mcap.write.messages` and, for scans and odometry,
+:mod:`~slamcli.formats.mcap.write.scans`).
 """
 
 from __future__ import annotations
@@ -14,10 +16,11 @@ import numpy as np
 from slamcli.errors import ConfigError
 from slamcli.formats.mcap.write.layer import FLAVORS, McapWriteSummary, check_choice, open_log
 from slamcli.formats.mcap.write.messages import FoxgloveWriter, Ros2Writer
-from slamcli.types import ImuFrame, ProgressFn, RgbdFrame, Trajectory
+from slamcli.formats.mcap.write.scans import ScanWriter
+from slamcli.types import ImuFrame, OdometryFrame, ProgressFn, RgbdFrame, ScanFrame, Trajectory
 
 if TYPE_CHECKING:
-    from slamcli.formats.base import Source
+    from slamcli.formats.base import Source, SourceInfo
 
 log = logging.getLogger(__name__)
 
@@ -67,13 +70,15 @@ def write_source_mcap(
     force: bool = False,
     progress: ProgressFn | None = None,
 ) -> McapWriteSummary:
-    """Write a source's RGB-D frames, camera, ground truth and IMU readings as an MCAP log.
+    """Write a source's RGB-D frames, camera, ground truth, IMU readings, scans and odometry
+    as an MCAP log.
 
     Topics, message types and the depth encodings are listed in the module docstring. Every
     message is stamped with the data's own time (ns): the header stamp, ``log_time`` and
     ``publish_time`` are equal; depth carries the depth image's stamp, the camera info the
-    colour image's. Ground-truth poses (the colour camera in ``world``) are interleaved with
-    the frames in time order.
+    colour image's. Ground-truth poses (the colour camera in ``world``, or the body for a scan
+    source) are interleaved with the frames in time order. What is read is decided by
+    :func:`convert_kinds`.
 
     Args:
         source: an open source (e.g. :class:`~slamcli.formats.tum_rgbd.TumRgbdSource`).
@@ -85,10 +90,11 @@ def write_source_mcap(
             ros2 flavour, depth is then written as ``compressedDepth`` PNG (lossless).
         depth_encoding: ``"16UC1"`` (millimetres) or ``"32FC1"`` (metres, exact).
         jpeg_quality: 1-100, for ``compress_images="jpeg"``.
-        max_frames: stop after this many RGB-D frames; the log then ends at the last frame's
-            stamp (ground truth and IMU after it are left out).
+        max_frames: stop after this many RGB-D frames and scans; the log then ends at the last
+            one's stamp (ground truth, IMU and odometry after it are left out).
         force: replace an existing ``out``.
-        progress: called as ``progress(frames_done, frames_total)``.
+        progress: called as ``progress(frames_done, frames_total)`` (RGB-D frames and scans;
+            the total is the source's RGB-D frame count, None when it has none).
 
     Raises:
         ConfigError: a bad option value.
@@ -104,9 +110,7 @@ def write_source_mcap(
         raise ConfigError(f"max_frames must be at least 1, got {max_frames}")
     out = Path(out)
     info = source.info()
-    kinds = ["rgbd"]
-    if any(s.kind == "imu" for s in info.streams):
-        kinds.append("imu")
+    kinds = convert_kinds(info)
     total = info.frames if max_frames is None else min(info.frames, max_frames)
     summary = McapWriteSummary(out)
     imu_dropped = 0
@@ -114,6 +118,7 @@ def write_source_mcap(
         cls = Ros2Writer if flavor == "ros2" else FoxgloveWriter
         writer = cls(mcap_log, compress_images, depth_encoding, jpeg_quality)
         poses = _PoseFeed(source.groundtruth(), writer.pose)
+        scans = ScanWriter(mcap_log, flavor) if "scan" in kinds else None
         last_stamp: int | None = None
         stopped_at: int | None = None
         for frame in source.frames(kinds):
@@ -121,13 +126,19 @@ def write_source_mcap(
                 stopped_at = last_stamp
                 break
             mcap_log.release(frame.stamp_ns - _REORDER_WINDOW_NS)
-            if isinstance(frame, RgbdFrame):
+            if isinstance(frame, RgbdFrame | ScanFrame):
                 poses.until(frame.stamp_ns)
-                writer.rgbd(frame)
+                if isinstance(frame, RgbdFrame):
+                    writer.rgbd(frame)
+                elif scans is not None:
+                    scans.scan(frame)
                 summary.frames += 1
                 last_stamp = frame.stamp_ns
                 if progress is not None:
-                    progress(summary.frames, total)
+                    progress(summary.frames, total or None)
+            elif isinstance(frame, OdometryFrame) and scans is not None:
+                poses.until(frame.stamp_ns)
+                scans.odometry(frame)
             elif isinstance(frame, ImuFrame):
                 poses.until(frame.stamp_ns)
                 if not writer.imu(frame):
@@ -139,3 +150,18 @@ def write_source_mcap(
         log.info("%d IMU readings left out: Foxglove has no IMU schema", imu_dropped)
     log.info("wrote %s: %d frames, %d ground-truth poses", out, summary.frames, poses.written)
     return summary
+
+
+def convert_kinds(info: SourceInfo) -> list[str]:
+    """The frame kinds a conversion reads from a source, by its streams' kinds: ``rgbd``
+    (unless it has scans and no images), ``imu``, ``scan`` and, with scans, ``odometry`` when
+    it has an odometry stream (or, for an MCAP log, odometry from tf)."""
+    have = {s.kind for s in info.streams}
+    kinds = ["rgbd"] if "image" in have or "scan" not in have else []
+    if "imu" in have:
+        kinds.append("imu")
+    if "scan" in have:
+        kinds.append("scan")
+        if "odometry" in have or info.details.get("scan_odometry"):
+            kinds.append("odometry")
+    return kinds
