@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 from slamcli.atomic import atomic_path
 from slamcli.errors import ExportError
 from slamcli.evaluation import EvalResult
-from slamcli.types import LandmarkMap, Trajectory, TriangleMesh
+from slamcli.types import LandmarkMap, SlamResult, Trajectory, TriangleMesh
 
 if TYPE_CHECKING:
     from slamcli.planar_eval import PlanarEval
@@ -539,3 +539,59 @@ def plot_multi_robot_run(path: str | Path, **kwargs: Any) -> Path:
     estimates = kwargs.pop("estimates")
     truths = kwargs.pop("truths")
     return save_png(multi_robot_figure(estimates, truths, **kwargs), path)
+
+
+def plot_scan_run(path: str | Path, result: SlamResult, evaluation: PlanarEval | None) -> Path:
+    """Write a PNG report of a lidar run (1400 x 700 pixels).
+
+    Left: the map (free white, occupied black, unknown grey) with the path and the loop
+    closures (edges between the poses they tie), and the ground truth moved onto the estimate
+    when there is an evaluation. Right, with an evaluation: the position error over time.
+    """
+    import numpy as np
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from slamcli.geometry.planar import se3_to_planar
+
+    assert result.trajectory is not None and result.grid is not None
+    fig = Figure(figsize=(14, 7))
+    FigureCanvasAgg(fig)
+    top = fig.add_axes((0.05, 0.08, 0.5, 0.84))
+    grid = result.grid
+    shade = np.where(np.isnan(grid.prob), 0.75, 1.0 - np.nan_to_num(grid.prob))
+    x0, y0 = grid.origin_xy_yaw[:2]
+    h, w = grid.prob.shape
+    extent = (x0, x0 + w * grid.resolution_m, y0, y0 + h * grid.resolution_m)
+    top.imshow(
+        shade, cmap="gray", vmin=0, vmax=1, origin="lower", extent=extent, interpolation="nearest"
+    )
+    xy = se3_to_planar(result.trajectory.world_from_body)[:, :2]
+    if evaluation is not None:
+        # The ground truth, moved onto the estimate by the inverse of the alignment.
+        gt = evaluation.gt[:, :2]
+        rot = evaluation.rotation
+        moved = (gt - evaluation.translation) @ rot
+        top.plot(*_decimated(moved).T, color="tab:green", lw=1.0, label="ground truth")
+    top.plot(*_decimated(xy).T, color="tab:blue", lw=1.0, label="estimate")
+    if result.pose_graph is not None:
+        nodes, edges = result.pose_graph
+        loops = [e for e in edges if e.kind == "loop"]
+        for e in loops[:: max(1, len(loops) // 300)]:
+            top.plot(*np.array([nodes[e.a][:2], nodes[e.b][:2]]).T, color="tab:red", lw=0.6)
+        top.plot([], [], color="tab:red", lw=0.6, label=f"loop closures ({len(loops)})")
+    top.set_aspect("equal")
+    top.set_xlabel("x (m)")
+    top.set_ylabel("y (m)")
+    top.legend(loc="upper right", fontsize=8)
+    top.set_title("map and path")
+    right = fig.add_axes((0.62, 0.08, 0.35, 0.84))
+    if evaluation is not None:
+        t = (evaluation.stamps_ns - evaluation.stamps_ns[0]) * 1e-9
+        right.plot(t, evaluation.ate_m, color="tab:blue", lw=1.0)
+        right.set_xlabel("time (s)")
+        right.set_ylabel("position error after SE(2) alignment (m)")
+        right.set_title(f"ATE rmse {evaluation.ate.rmse:.3f} m")
+    else:
+        _empty_panel(right, "no ground truth", "position error")
+    return save_png(fig, path)

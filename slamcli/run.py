@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
 from typing import Any
 
-from slamcli.errors import DataLossError, InputError, PipelineError
+from slamcli.errors import ConfigError, DataLossError, InputError, PipelineError
 from slamcli.formats.base import ReadAhead, ReadStats, Source, SourceInfo
 from slamcli.interrupts import watched
 from slamcli.pipelines import Evaluation, Pipeline
@@ -121,7 +121,7 @@ def run_pipeline(
 
             with timings.stage("export"):
                 write_result_log(run.output("result.mcap"), result, force=True)
-        if build_map:
+        if build_map and result.grid is None:
             _build_map(run, pipeline, result, input_path, options, evaluation, map_progress)
         counts = {
             "frames_read": tracked.stats.read,
@@ -166,10 +166,18 @@ def _track(
     """Open the source, feed the pipeline every frame, finish it and read the ground truth."""
     from slamcli.formats import open_source
 
+    reference = _reference(options)
+    if reference is not None:
+        options = {k: v for k, v in options.items() if k != "groundtruth"}
+    odometry = options.pop("odometry", None)
+    if odometry not in (None, "log", "none"):
+        raise ConfigError(f"--odometry {odometry}: expected 'log' or 'none'")
     try:
         with open_source(input_path, **options) as source:
             with timings.stage("open"):
                 info, kinds = _open(source, pipe, build_map)
+                if odometry == "none":
+                    kinds = tuple(k for k in kinds if k != "odometry")
             # info's count is an estimate for some formats (MCAP pairs by log time there): it
             # sizes the progress bar but never limits the run.
             total = info.frames if max_frames is None else min(info.frames, max_frames)
@@ -185,13 +193,35 @@ def _track(
             # After the frames: a source may give ground truth at the times of the frames it
             # read.
             with timings.stage("groundtruth"):
-                truth = _Truth(source.groundtruth(), source.landmark_truth(), source.groundtruths())
+                truth = _Truth(
+                    source.groundtruth() if reference is None else reference,
+                    source.landmark_truth(),
+                    source.groundtruths(),
+                )
             stats = source.stats
     except BaseException:
         pipe.close()
         raise
     input_hash = digest.result() if digest is not None else hash_input(input_path)
     return _Tracked(info, result, frames, stats, truth, input_hash)
+
+
+def _reference(options: dict[str, Any]) -> Trajectory | None:
+    """The ground truth given as a trajectory file (``groundtruth`` naming a file rather than
+    ``log``, the poses a laser log carries), read before the run so a bad file fails first."""
+    given = options.get("groundtruth")
+    if given is None or given == "log":
+        return None
+    from slamcli.formats.trajectory import read_trajectory
+
+    path = Path(str(given))
+    if not path.is_file():
+        raise InputError(
+            f"--groundtruth {given}: no such file",
+            hint="give a trajectory file (TUM, EuRoC or KITTI), or 'log' for the poses a "
+            "laser log carries",
+        )
+    return read_trajectory(path)
 
 
 def _open(source: Source, pipe: Pipeline, build_map: bool) -> tuple[SourceInfo, tuple[str, ...]]:
@@ -227,7 +257,10 @@ def _feed(pipe: Pipeline, items: Any, total: int, progress: ProgressFn | None) -
 def _check_mappable(pipe: Pipeline) -> None:
     """Refuse ``build_map`` for a run that can have no occupancy map, before its frames."""
     from slamcli.mapping.build import MAP_KINDS
+    from slamcli.pipelines import PIPELINES
 
+    if "map.yaml" in PIPELINES[pipe.name].produces:
+        return  # the pipeline's own map is the run's map
     if pipe.name not in MAP_KINDS:
         raise InputError(
             f"--map: a {pipe.name} run has no map to build (maps come from "
@@ -249,12 +282,19 @@ def _score(
 ) -> dict[str, Any]:
     """The pipeline's own figures (per-stage ms/frame, loop closures, ...), the memory used,
     and the accuracy against the ground truth, with report.png."""
-    from slamcli.scoring import evaluate_planar_run, evaluate_robots, evaluate_run
+    from slamcli.scoring import (
+        evaluate_planar_run,
+        evaluate_robots,
+        evaluate_run,
+        evaluate_scan_run,
+    )
 
     metrics: dict[str, Any] = dict(result.metrics)
     metrics["alignment"] = evaluation
     metrics["memory"] = peak_memory()
-    if evaluation == "se2":
+    if result.grid is not None:
+        metrics.update(evaluate_scan_run(truth.trajectory, result, run, timings))
+    elif evaluation == "se2":
         metrics.update(evaluate_planar_run(truth.trajectory, truth.landmarks, result, run, timings))
     elif truth.trajectory is not None:
         metrics.update(evaluate_run(truth.trajectory, result, run, timings, evaluation))
@@ -298,6 +338,32 @@ def _export(run: RunDir, result: SlamResult, glb: bool) -> None:
         from slamcli.formats.mesh import write_points_ply
 
         write_points_ply(run.output("points.ply"), result.points, result.point_colors)
+    if result.grid is not None:
+        _export_grid(run, result)
+
+
+def _export_grid(run: RunDir, result: SlamResult) -> None:
+    """The map a pipeline made itself (lidar): map.yaml, map.pgm, map.png and map.json."""
+    import numpy as np
+
+    from slamcli.geometry.planar import se3_to_planar
+    from slamcli.mapping.build import BuiltMap
+    from slamcli.mapping.output import write_map
+
+    assert result.grid is not None and result.trajectory is not None
+    prob = result.grid.prob
+    known = ~np.isnan(prob)
+    report = {
+        "kind": "scans",
+        "resolution_m": result.grid.resolution_m,
+        "size_cells": [int(prob.shape[1]), int(prob.shape[0])],
+        "origin": list(result.grid.origin_xy_yaw),
+        "known_cells": int(known.sum()),
+        "occupied_cells": int((prob[known] >= 0.65).sum()),
+    }
+    path_xy = se3_to_planar(result.trajectory.world_from_body)[:, :2]
+    for written in write_map(run.staging, BuiltMap(result.grid, report, path_xy)):
+        run.output(written.name)
 
 
 def _build_map(

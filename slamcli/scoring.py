@@ -154,3 +154,39 @@ def _plot_robots(
         ate={int(k): v["ate_common"]["rmse"] for k, v in per.items() if "ate_common" in v},
     )
     return sorted(robots)
+
+
+def evaluate_scan_run(
+    groundtruth: Trajectory | None,
+    result: SlamResult,
+    run: RunDir,
+    timings: Timings,
+) -> dict[str, Any]:
+    """A lidar run: the SE(2) ATE and the relative pose errors over pose pairs 1 s and 10 s
+    apart (Kümmerle et al. 2009) when there is ground truth, and report.png (the map, the path,
+    the loop closures; the ground truth and the error over time when there is one)."""
+    from slamcli.evaluation import planar_rpe
+    from slamcli.planar_eval import evaluate_planar
+    from slamcli.report import plot_scan_run
+
+    assert result.trajectory is not None
+    metrics: dict[str, Any] = {}
+    evaluation = None
+    if groundtruth is not None:
+        with timings.stage("evaluate"):
+            try:
+                evaluation = evaluate_planar(groundtruth, result.trajectory)
+                metrics["evaluation"] = evaluation.to_dict()
+                rpe: dict[str, Any] = {}
+                for delta in (1.0, 10.0):
+                    try:
+                        rpe[f"{delta:g}s"] = planar_rpe(groundtruth, result.trajectory, delta)
+                    except InputError as exc:
+                        log.info("no RPE over %g s: %s", delta, exc.msg)
+                metrics["evaluation"]["rpe"] = {k: v.to_dict() for k, v in rpe.items()}
+            except InputError as exc:
+                log.warning("no accuracy figures: %s", exc.msg)
+                evaluation = None
+    with timings.stage("report"):
+        plot_scan_run(run.output("report.png"), result, evaluation)
+    return metrics

@@ -39,6 +39,9 @@ class SourceOptions:
     gt_frame: str | None = None
     landmark_topic: str | None = None
     scan_topic: str | None = None
+    odometry: str | None = None
+    groundtruth: str | None = None
+    max_range: float | None = None
 
     def __post_init__(self) -> None:
         # "--robot 2" arrives as text; one robot is recorded as the number it names.

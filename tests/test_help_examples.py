@@ -42,6 +42,7 @@ ORDER = [
     "run visual",
     "run ekf",
     "run graph",
+    "run lidar",
     "merge",
     "batch",
     "config dump",

@@ -173,6 +173,47 @@ def _planar_summary(metrics: dict[str, Any], counts: dict[str, Any]) -> None:
     key_values("Filter", summary)
 
 
+def _scan_summary(metrics: dict[str, Any], counts: dict[str, Any]) -> None:
+    """The accuracy table of a lidar run (ATE, RPE over 1 s and 10 s) and its scan matching."""
+    ev = metrics.get("evaluation")
+    if ev:
+        rows = [
+            ["ATE (m), SE(2) aligned", *(f"{ev['ate'][k]:.4f}" for k in ("rmse", "mean", "max"))]
+        ]
+        for span, rpe in (ev.get("rpe") or {}).items():
+            rows.append(
+                [
+                    f"RPE over {span} ({rpe['pairs']} pairs), m",
+                    *(f"{rpe['trans'][k]:.4f}" for k in ("rmse", "mean", "max")),
+                ]
+            )
+            rows.append(
+                [
+                    f"RPE over {span}, deg",
+                    *(f"{rpe['rot_deg'][k]:.3f}" for k in ("rmse", "mean", "max")),
+                ]
+            )
+        table(
+            f"Accuracy against ground truth ({ev['matched']} poses, SE(2) alignment)",
+            ["metric", "rmse", "mean", "max"],
+            rows,
+            right_align=["rmse", "mean", "max"],
+        )
+    per_scan = metrics.get("ms_per_scan") or {}
+    key_values(
+        "Scan matching",
+        {
+            "scans / nodes / submaps": f"{counts.get('scans', 0)} / {counts.get('nodes', 0)} / "
+            f"{counts.get('submaps', 0)}",
+            "scans not matched": counts.get("scans_not_matched", 0),
+            "loops closed": counts.get("loops_closed", 0),
+            "loops rejected (fit / graph)": f"{counts.get('loops_rejected_by_fit', 0)} / "
+            f"{counts.get('loops_rejected_by_graph', 0)}",
+            "ms per scan": f"{sum(per_scan.values()):.1f}",
+        },
+    )
+
+
 def _planar_accuracy(metrics: dict[str, Any], ev: dict[str, Any]) -> None:
     rows = [["ATE (m), SE(2) aligned", *(f"{ev['ate'][k]:.4f}" for k in ("rmse", "mean", "max"))]]
     filt = metrics.get("filtered")
@@ -216,7 +257,9 @@ def run_summary(outcome: RunOutcome) -> None:
         facts["camera"] = info.camera_source
     key_values("Input", facts)
     ev = outcome.metrics.get("evaluation")
-    if outcome.evaluation == "se2":
+    if outcome.result.grid is not None:
+        _scan_summary(outcome.metrics, outcome.counts)
+    elif outcome.evaluation == "se2":
         _planar_summary(outcome.metrics, outcome.counts)
     elif ev:
         stats = [("ATE (m)", ev["ate"])]

@@ -124,6 +124,38 @@ IgnoreIds = Annotated[
 ]
 
 
+Odometry = Annotated[
+    str | None,
+    typer.Option(
+        "--odometry",
+        help="'none' ignores the log's odometry: the scans alone place the robot (e.g. a "
+        "corrected laser log, whose poses are a reference, not odometry).",
+        show_default=False,
+        rich_help_panel=PANEL,
+    ),
+]
+Groundtruth = Annotated[
+    str | None,
+    typer.Option(
+        "--groundtruth",
+        help="Score against this trajectory file (TUM, EuRoC or KITTI), or 'log': the poses a "
+        "laser log carries (CARMEN logs corrected by a SLAM system).",
+        show_default=False,
+        rich_help_panel=PANEL,
+    ),
+]
+MaxRange = Annotated[
+    float | None,
+    typer.Option(
+        "--max-range",
+        help="CARMEN logs: ranges at or beyond this (m) are no return (default 50; FLASER "
+        "lines do not say).",
+        show_default=False,
+        rich_help_panel=PANEL,
+    ),
+]
+
+
 TOPICS = "MCAP topics"
 
 
@@ -184,6 +216,9 @@ _OPTIONS: dict[str, Any] = {
     "gt_frame": GtFrame,
     "landmark_topic": LandmarkTopic,
     "scan_topic": ScanTopic,
+    "odometry": Odometry,
+    "groundtruth": Groundtruth,
+    "max_range": MaxRange,
 }
 """The typer option of each :class:`SourceOptions` field."""
 

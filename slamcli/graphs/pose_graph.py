@@ -371,12 +371,17 @@ def save_g2o(
     *,
     fixed: Iterable[int] = (),
 ) -> Path:
-    """Write an SE(3) graph as a g2o file (atomically), the inverse of :func:`from_g2o`.
+    """Write an SE(3) graph, or an SE(2) one (poses (N, 3) x, y, yaw), as a g2o file
+    (atomically), the inverse of :func:`from_g2o`.
 
-    Vertex ids are the node indices. The information is converted to g2o's order and units.
+    Vertex ids are the node indices. The information is converted to g2o's order and units
+    (SE(2) graphs share g2o's (x, y, theta) order).
     """
     from slamcli.formats.g2o import write_g2o_se3
 
+    planar = np.asarray(poses, dtype=np.float64)
+    if planar.ndim == 2 and planar.shape[1] == 3:
+        return _save_g2o_se2(path, planar, edges, fixed)
     stack = _check_poses(poses)
     _check_edges(edges, len(stack), "se3")
     pinv = np.linalg.inv(_g2o_jacobian())
@@ -389,6 +394,27 @@ def save_g2o(
         np.einsum("ji,ejk,kl->eil", pinv, info, pinv),
         fixed=tuple(int(f) for f in fixed),
     )
+
+
+def _save_g2o_se2(
+    path: str | Path, poses: F64, edges: Sequence[Edge], fixed: Iterable[int]
+) -> Path:
+    from slamcli.formats.g2o import PoseGraph, write_g2o
+
+    stack = _check_planar_poses(poses)
+    _check_edges(edges, len(stack), "se2")
+    info = np.stack([_information(e, 3) for e in edges]) if edges else np.zeros((0, 3, 3))
+    graph = PoseGraph(
+        dim=2,
+        vertex_ids=np.arange(len(stack), dtype=np.int64),
+        poses=stack,
+        edges=np.asarray([(e.a, e.b) for e in edges], dtype=np.int64).reshape(-1, 2),
+        measurements=np.stack([e.a_from_b for e in edges]) if edges else np.zeros((0, 3)),
+        information=info,
+        fixed=tuple(int(f) for f in fixed),
+        path=Path(path),
+    )
+    return write_g2o(path, graph)
 
 
 def _g2o_to_matrix(values: F64) -> F64:

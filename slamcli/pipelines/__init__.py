@@ -209,6 +209,34 @@ alignment. Settings: 'slamcli config dump graph'.""",
         produces=("trajectory.tum", "landmarks.csv", "report.png"),
         evaluation="se2",
     ),
+    "lidar": PipelineSpec(
+        target="slamcli.pipelines.lidar:LidarSlam",
+        help="""2-D lidar SLAM: an occupancy map and a trajectory from laser scans, with or \
+without odometry.
+
+Reads CARMEN laser logs, MCAP logs and ROS 1/ROS 2 bags with sensor_msgs/LaserScan (and \
+nav_msgs/Odometry when there is one: --scan-topic, --odom-topic). Each scan is matched to a \
+local submap (branch-and-bound correlative search, then continuous refinement) from an \
+odometry, constant-velocity or no-motion guess; loops are closed against finished submaps in \
+a window that grows with the distance travelled, verified, and solved on a GTSAM pose graph \
+with a robust kernel. Writes trajectory.tum (a pose for every scan), keyframes.tum, map.yaml + \
+map.pgm (map_server, trinary), map.png, points.ply, graph.g2o, report.png and run.json (ATE \
+after SE(2) alignment and the relative pose errors over 1 s and 10 s when the input has \
+ground truth: --groundtruth FILE, or 'log' for a corrected laser log's own poses). Settings: \
+'slamcli config dump lidar'. Exits with 3 when scans had to be skipped.""",
+        example="slamcli run lidar ../shared/data/lidar/rosbag1/ccny_scan_matcher_demo.bag "
+        "--out runs/ccny --force",
+        produces=(
+            "trajectory.tum",
+            "keyframes.tum",
+            "map.yaml",
+            "map.pgm",
+            "points.ply",
+            "graph.g2o",
+            "report.png",
+        ),
+        evaluation="se2",
+    ),
 }
 """Pipelines by name. Adding one is one entry here and one module."""
 
