@@ -127,6 +127,17 @@ class ProbabilityGrid:
         self.seen[r0:r1, c0:c1] |= crossed | hit
         self.insertions += 1
 
+    def shrink(self) -> None:
+        """Cut the window to the cells beams reached (a finished grid grows no more)."""
+        rows = np.flatnonzero(self.seen.any(axis=1))
+        cols = np.flatnonzero(self.seen.any(axis=0))
+        if not len(rows):
+            return
+        r0, r1, c0, c1 = rows[0], rows[-1] + 1, cols[0], cols[-1] + 1
+        self.log_odds = np.ascontiguousarray(self.log_odds[r0:r1, c0:c1])
+        self.seen = np.ascontiguousarray(self.seen[r0:r1, c0:c1])
+        self.origin = self.origin + np.array([c0, r0]) * self.resolution
+
     def probabilities(self) -> F32:
         """(H, W) float32 occupancy probability, NaN where no beam reached."""
         p = 1.0 / (1.0 + np.exp(-self.log_odds))

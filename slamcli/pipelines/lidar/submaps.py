@@ -19,7 +19,7 @@ from slamcli.scans.matching import Pyramid
 
 F64 = NDArray[np.float64]
 
-_KEPT_PYRAMIDS = 4
+_KEPT_PYRAMIDS = 2
 """Finished submaps whose loop-search pyramids are kept between searches."""
 
 
@@ -96,6 +96,7 @@ class SubmapSet:
         while self.active and len(self.active[0].nodes) >= self.size:
             sub = self.active.pop(0)
             sub.finished = True
+            sub.grid.shrink()
             sub.drop_pyramid()
             done.append(sub.index)
         return done
