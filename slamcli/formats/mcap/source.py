@@ -559,6 +559,10 @@ class McapSource(SourceBase):
         topic = self.topic("groundtruth", required=self._want["groundtruth"] is not None)
         if topic is None:
             return None
+        if self._want["groundtruth"] is None and topic == self._topics.chosen.get("odometry"):
+            # The run's own odometry is no reference to score it against.
+            log.info("%s: %s is the odometry read, not taken as ground truth", self.path, topic)
+            return None
         stamps, poses = [], []
         for _, rec in self._records([topic]):
             if isinstance(rec, PoseRecord):
