@@ -218,6 +218,8 @@ def _show(info: SourceInfo) -> None:
             items["odometry"] = str(d["odometry_topic"])
         if info.frames:
             items["frames"] = f"{info.frames} paired RGB-D frames"
+    elif any(s.kind == "scan" for s in info.streams):
+        items = _scan_items(info)
     else:
         items = {"frames": f"{info.frames} paired RGB-D frames"}
     if d.get("rgb_topic"):
@@ -325,3 +327,28 @@ def _groundtruth(info: SourceInfo) -> str:
             "have a pose within 0.02 s"
         )
     return text
+
+
+def _scan_items(info: Any) -> dict[str, Any]:
+    """What a laser log holds: its scans (count, beams), their mounting, where odometry is."""
+    d = info.details
+    scans = [s for s in info.streams if s.kind == "scan"]
+    items: dict[str, Any] = {
+        "scans": ", ".join(
+            f"{s.count} on {s.name}" + (f" ({s.detail})" if s.detail else "") for s in scans
+        ),
+    }
+    if d.get("scan_mounting"):
+        items["mounting"] = d["scan_mounting"]
+    odometry = d.get("scan_odometry")
+    if odometry is None:
+        odometry = next(
+            (
+                f"{s.count} poses on {s.name}" + (f" ({s.detail})" if s.detail else "")
+                for s in info.streams
+                if s.kind == "odometry" and s.count
+            ),
+            None,
+        )
+    items["odometry"] = odometry or "none (scans alone: run lidar matches them without a guess)"
+    return items
