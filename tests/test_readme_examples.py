@@ -53,6 +53,7 @@ ORDER = (
     "docs/dense.md",  # runs/room, room.mcap; mesh export reads runs/demo
     "docs/visual.md",
     "docs/landmark-slam.md",  # runs/mrclam2
+    "docs/lidar.md",  # runs/ccny, ccny.mcap
     "docs/maps.md",  # reads runs/room and runs/mrclam2
     "docs/planning.md",
     "docs/formats.md",
