@@ -383,7 +383,13 @@ def test_eval_se2_json_has_the_known_figures(tmp_path: Path) -> None:
     assert math.isclose(relations["trans"]["mean"], 2 * D * math.sin(50 * DELTA), abs_tol=1e-8)
 
 
-def test_eval_se2_table_reports_pair_counts_and_missing_relations(tmp_path: Path) -> None:
+def test_eval_se2_table_reports_pair_counts_and_missing_relations(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from slamcli.cli import render
+
+    # The console's width is read once per process; the table needs room for every column.
+    monkeypatch.setattr(render.out, "width", 250)
     gt, est, rel = _files(tmp_path)
     args = [
         "eval",
