@@ -35,6 +35,7 @@ ORDER = [
     "demo",
     "synth rgbd",
     "synth landmarks",
+    "synth lidar",
     "vocab train",
     "vocab info",
     "run odometry",
