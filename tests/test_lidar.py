@@ -313,3 +313,57 @@ def test_a_log_without_scans_is_refused_with_its_topics() -> None:
     result = CliRunner().invoke(app, ["run", "lidar", str(log), "--out", "unused"])
     assert result.exit_code == 1
     assert "scan" in result.output.lower() and "/odom" in result.output
+
+
+SYNTH_SCANS = 400
+
+
+@pytest.fixture(scope="module", params=[("building_31", "drift"), ("stata_basement", "none")])
+def synth_run(request: pytest.FixtureRequest, shared_artefact):  # type: ignore[no-untyped-def]
+    """A simulated drive through a shared building map (``synth lidar``), run with its drifting
+    odometry or with scans alone, scored against its exact ground truth."""
+    name, odometry = request.param
+    building = shared_path("maps", f"{name}.yaml")
+
+    def make(folder: Path) -> None:
+        from slamcli.synth.lidar import generate_lidar_world
+
+        generate_lidar_world(building, folder / "log", seed=3, scans=SYNTH_SCANS)
+        options = {"groundtruth": str(folder / "log" / "groundtruth.tum")}
+        if odometry == "none":
+            options["odometry"] = "none"
+        run_pipeline(folder / "log" / "scans.mcap", "lidar", folder / "run", source_options=options)
+
+    return building, shared_artefact(f"lidar-synth-{name}-{odometry}", make)
+
+
+@pytest.mark.slow
+def test_simulated_drive_is_within_5_cm_and_closes_its_loop(synth_run) -> None:  # type: ignore[no-untyped-def]
+    _, folder = synth_run
+    record = json.loads((folder / "run" / "run.json").read_text())
+    assert record["metrics"]["evaluation"]["ate"]["rmse"] <= 0.05
+    assert record["counts"]["scans"] == SYNTH_SCANS
+    # The route comes back to its start: that revisit must close a loop.
+    assert record["counts"]["loops_closed"] >= 1
+    assert record["counts"].get("scans_not_matched", 0) == 0
+
+
+@pytest.mark.slow
+def test_simulated_drive_maps_the_walls_within_one_cell(synth_run) -> None:  # type: ignore[no-untyped-def]
+    from scipy.spatial import cKDTree
+
+    from slamcli.formats.occupancy.grid import cell_to_world
+
+    building, folder = synth_run
+    source = read_map_yaml(building)
+    made = read_map_yaml(folder / "run" / "map.yaml")
+    truth = read_trajectory(folder / "log" / "groundtruth.tum")
+    est = read_trajectory(folder / "run" / "trajectory.tum")
+    alignment = evaluate_planar(truth, est)
+    walls = cell_to_world(source, np.argwhere(np.nan_to_num(source.prob) >= 0.65))
+    ours = cell_to_world(made, np.argwhere(np.nan_to_num(made.prob) >= 0.65))
+    assert len(ours) > 200
+    distance, _ = cKDTree(walls).query(alignment.transform_xy(ours))
+    # Cell centres of the same wall lie at most one cell apart along each axis.
+    one_cell = math.sqrt(2) * source.resolution_m
+    assert np.mean(distance <= one_cell) >= 0.97, np.percentile(distance, [50, 95, 99])

@@ -177,22 +177,24 @@ def refine(
     field: Field,
     points: F64,
     start: F64,
-    translation_weight: float = 0.001,
-    rotation_weight: float = 0.001,
+    target: F64 | None = None,
+    translation_weight: float = 1.0,
+    rotation_weight: float = 1.0,
     iterations: int = 10,
 ) -> Match:
     """``start`` moved continuously to fit ``points`` (N, 2, body frame) to the field.
 
-    Minimises ``sum (1 - F(T p))^2 / N + tw |t - t0|^2 / res^2 + rw (yaw - yaw0)^2`` by
-    Gauss-Newton, ``T`` the pose and ``F`` the bilinear field; the last two terms hold the pose
-    near ``start`` where the field is flat.
+    Minimises ``sum (1 - F(T p))^2 / N + tw |t - t0|^2 + rw (yaw - yaw0)^2`` (metres,
+    radians) by Gauss-Newton, ``T`` the pose, ``F`` the bilinear field and ``(t0, yaw0)`` the
+    ``target`` (the motion prior; ``start`` when None). The prior terms decide where the field
+    cannot (along a featureless corridor); elsewhere the points do.
     """
     pose = np.asarray(start, dtype=np.float64).copy()
+    anchor = pose.copy() if target is None else np.asarray(target, dtype=np.float64)
     if not len(points):
         return Match(pose, 0.0)
     n = len(points)
-    res = field.resolution
-    w_t = translation_weight / (res * res)
+    w_t = translation_weight
     for _ in range(iterations):
         world = transform_points_planar(pose, points)
         value, grad = field.sample(world)
@@ -207,7 +209,8 @@ def refine(
         resid = 1.0 - value
         h = jac.T @ jac / n
         g = jac.T @ resid / n
-        dt = pose - start
+        dt = pose - anchor
+        dt[2] = (dt[2] + math.pi) % (2 * math.pi) - math.pi
         h[0, 0] += w_t
         h[1, 1] += w_t
         h[2, 2] += rotation_weight

@@ -49,7 +49,7 @@ class LidarConfig:
     resolution_m: float = setting(0.05, gt=0.0, max=1.0, unit="m")
     max_range_m: float = setting(30.0, gt=0.0, unit="m")
     voxel_m: float = setting(0.1, min=0.0, unit="m")
-    field_sigma_m: float = setting(0.1, gt=0.0, unit="m")
+    field_sigma_m: float = setting(0.07, gt=0.0, unit="m")
     motion_prior: str = setting("auto", choices=("auto", "odometry", "constant_velocity", "none"))
     search_window_m: float = setting(0.4, gt=0.0, max=5.0, unit="m")
     search_window_deg: float = setting(20.0, gt=0.0, max=90.0, unit="deg")

@@ -191,7 +191,7 @@ class LidarSlam(PipelineBase):
         if found is None:
             self.counts["scans_not_matched"] += 1
             return guess
-        refined = refine(pyramid.field, points, found.pose)
+        refined = refine(pyramid.field, points, found.pose, target=guess)
         start = fit_score(pyramid.field, points, found.pose)
         return refined.pose if refined.score >= start else found.pose
 
