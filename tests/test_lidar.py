@@ -367,3 +367,19 @@ def test_simulated_drive_maps_the_walls_within_one_cell(synth_run) -> None:  # t
     # Cell centres of the same wall lie at most one cell apart along each axis.
     one_cell = math.sqrt(2) * source.resolution_m
     assert np.mean(distance <= one_cell) >= 0.97, np.percentile(distance, [50, 95, 99])
+
+
+def test_the_odometry_read_is_not_taken_as_ground_truth(synth_run) -> None:  # type: ignore[no-untyped-def]
+    """A log whose only pose topic is its odometry: scoring a run against its own input would
+    measure nothing, so there is no ground truth unless the topic is named."""
+    from slamcli.formats import open_source
+
+    log = synth_run[1] / "log" / "scans.mcap"
+    with open_source(log) as source:
+        kinds = ("scan", "odometry")
+        assert sum(1 for _ in source.frames(kinds)) > SYNTH_SCANS
+        assert source.groundtruth() is None
+    with open_source(log, gt_topic="/odom") as source:
+        assert sum(1 for _ in source.frames(kinds)) > SYNTH_SCANS
+        truth = source.groundtruth()
+        assert truth is not None and len(truth) >= SYNTH_SCANS

@@ -556,12 +556,8 @@ class McapSource(SourceBase):
     def _groundtruth_samples(self) -> Trajectory | None:
         if self.gt_frame is not None:
             return self._tf_groundtruth(self.gt_frame)
-        topic = self.topic("groundtruth", required=self._want["groundtruth"] is not None)
+        topic = self._topics.reference(required=self._want["groundtruth"] is not None)
         if topic is None:
-            return None
-        if self._want["groundtruth"] is None and topic == self._topics.chosen.get("odometry"):
-            # The run's own odometry is no reference to score it against.
-            log.info("%s: %s is the odometry read, not taken as ground truth", self.path, topic)
             return None
         stamps, poses = [], []
         for _, rec in self._records([topic]):

@@ -10,6 +10,7 @@ depth).
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Collection
 from pathlib import Path
 from typing import Any
@@ -18,6 +19,8 @@ from slamcli.errors import TopicNotFoundError
 from slamcli.formats.mcap.adapters import normalize_schema_name
 from slamcli.formats.mcap.observations import SCHEMA_NAME as LANDMARK_SCHEMA_NAME
 from slamcli.formats.mcap.records import ChannelInfo, ImageRecord
+
+log = logging.getLogger(__name__)
 
 IMAGE_SCHEMAS = frozenset(
     {
@@ -133,6 +136,15 @@ class TopicChooser:
         count = st.count if st else 0
         hz = rate(st.count, st.first_ns, st.last_ns) if st else None
         return [topic, ch.schema_name, encoding, str(count), f"{hz:.1f}" if hz else "-"]
+
+    def reference(self, required: bool) -> str | None:
+        """The ground-truth topic. Chosen automatically, it is never the odometry topic being
+        read: a run scored against its own input measures nothing."""
+        topic = self.choose("groundtruth", required)
+        if self.wanted.get("groundtruth") is None and topic == self.chosen.get("odometry"):
+            log.info("%s: %s is the odometry read, not taken as ground truth", self.path, topic)
+            return None
+        return topic
 
     def choose(self, role: str, required: bool = True) -> str | None:
         """The topic for ``role`` (a key of :data:`ROLES`).
