@@ -383,3 +383,23 @@ def test_the_odometry_read_is_not_taken_as_ground_truth(synth_run) -> None:  # t
         assert sum(1 for _ in source.frames(kinds)) > SYNTH_SCANS
         truth = source.groundtruth()
         assert truth is not None and len(truth) >= SYNTH_SCANS
+
+
+def test_a_batch_runs_lidar_jobs_with_their_gates(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from slamcli.cli.app import app
+
+    manifest = tmp_path / "lidar.toml"
+    manifest.write_text(
+        "[[job]]\n"
+        'name = "ccny"\n'
+        f'input = "{shared_path(*CCNY)}"\n'
+        'pipeline = "lidar"\n'
+        'fail_if = ["loops_closed < 1", "scans_not_matched > 0"]\n'
+    )
+    result = CliRunner().invoke(app, ["batch", str(manifest), "--out", str(tmp_path / "out")])
+    assert result.exit_code == 0, result.output
+    record = json.loads((tmp_path / "out" / "batch.json").read_text())
+    (job,) = record["jobs"]
+    assert job["status"] == "passed"

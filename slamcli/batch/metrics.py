@@ -120,6 +120,19 @@ _COUNTS: dict[str, set[str]] = {
         "smoother_observations",
         "updates",
     },
+    "lidar": {
+        "scans",
+        "scans_not_matched",
+        "scans_out_of_order",
+        "nodes",
+        "submaps",
+        "odometry",
+        "loop_searches",
+        "loops_closed",
+        "loops_rejected_by_fit",
+        "loops_rejected_by_graph",
+        "optimisations",
+    },
 }
 """Each pipeline's own counts."""
 
@@ -128,6 +141,8 @@ _COUNT_PREFIXES: dict[str, tuple[str, ...]] = {"visual": ("init_rejected_",)}
 
 _METRICS: dict[str, set[str]] = {
     "ekf": {f"nis.{k}" for k in ("mean", "median", "dof", "fraction_in_band")},
+    "lidar": _stats(*(f"rpe.{d}.{k}" for d in ("1s", "10s") for k in ("trans", "rot_deg")))
+    | {"rpe.1s.pairs", "rpe.10s.pairs"},
 }
 """Each pipeline's own numeric metrics besides accuracy and timing."""
 

@@ -199,7 +199,7 @@ def _scan_summary(metrics: dict[str, Any], counts: dict[str, Any]) -> None:
             rows,
             right_align=["rmse", "mean", "max"],
         )
-    per_scan = metrics.get("ms_per_scan") or {}
+    per_scan = metrics.get("ms_per_frame") or {}
     key_values(
         "Scan matching",
         {
@@ -209,7 +209,7 @@ def _scan_summary(metrics: dict[str, Any], counts: dict[str, Any]) -> None:
             "loops closed": counts.get("loops_closed", 0),
             "loops rejected (fit / graph)": f"{counts.get('loops_rejected_by_fit', 0)} / "
             f"{counts.get('loops_rejected_by_graph', 0)}",
-            "ms per scan": f"{sum(per_scan.values()):.1f}",
+            "ms per scan": f"{per_scan.get('total', 0.0):.1f}",
         },
     )
 
