@@ -158,11 +158,12 @@ def _refuse(input: Path, flags: list[str], what: str, why: str) -> None:
 def _export_trajectory(
     input: Path, out: Path, options: dict[str, Any], force: bool
 ) -> ConvertResult:
-    from slamcli.formats import sniff
+    from slamcli.formats import SNIFFERS, source_class
 
     gt_topic, gt_frame = options.get("gt_topic"), options.get("gt_frame")
-    if not sniff.mcap(input):
-        raise ConfigError(f"{input}: trajectories are exported from MCAP logs only")
+    kind = next((k for k in ("mcap", "rosbag1", "rosbag2") if SNIFFERS[k](input)), None)
+    if kind is None:
+        raise ConfigError(f"{input}: trajectories are exported from MCAP logs and ROS bags only")
     if out.exists() and not force:
         raise ConfigError(f"{out}: exists", hint="pass --force to overwrite it")
     if not (gt_topic or gt_frame):
@@ -170,12 +171,11 @@ def _export_trajectory(
             f"{out}: exporting a trajectory needs --gt-topic TOPIC or --gt-frame FRAME",
             hint=f"'slamcli info {input}' lists the topics",
         )
-    from slamcli.formats.mcap.source import McapSource
     from slamcli.formats.trajectory import write_trajectory
 
     strict = bool(options.get("strict", False))
     limit = {"max_chunk_mb": options["max_chunk_mb"]} if options.get("max_chunk_mb") else {}
-    with McapSource.open(
+    with source_class(kind).open(
         input, gt_topic=gt_topic, gt_frame=gt_frame, strict=strict, **limit
     ) as source:
         trajectory = source.groundtruth()

@@ -252,6 +252,23 @@ def test_convert_writes_an_mcap_of_a_bag(bags: dict[str, Path], tmp_path: Path) 
     _assert_same_frames(got, want)
 
 
+@pytest.mark.parametrize("name", ["ros1", "sqlite3"])
+def test_convert_exports_a_pose_topic_of_a_bag_as_a_trajectory(
+    room: Path, bags: dict[str, Path], tmp_path: Path, name: str
+) -> None:
+    from slamcli.convert import convert
+    from slamcli.formats.trajectory import read_trajectory
+
+    out = tmp_path / "groundtruth.tum"
+    convert(bags[name], out, source_options={"gt_topic": "/groundtruth"})
+    with open_source(room, gt_topic="/groundtruth") as log:
+        want = log.groundtruth()
+    got = read_trajectory(out)
+    assert want is not None
+    np.testing.assert_array_equal(got.stamps_ns, want.stamps_ns)
+    np.testing.assert_allclose(got.world_from_body, want.world_from_body, atol=1e-6)
+
+
 def test_ros1_bag_definitions_come_from_the_bag(tmp_path: Path) -> None:
     """A type no ROS distribution has decodes with the definition its connection stores."""
     from rosbags.rosbag1 import Writer
