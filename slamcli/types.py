@@ -197,6 +197,47 @@ class ImuFrame:
 
 
 @dataclass(frozen=True)
+class StereoRig:
+    """The geometry of a rectified stereo pair.
+
+    Both images follow ``camera`` (rectified: no distortion, rows aligned); the right camera's
+    centre sits ``baseline_m`` along the left camera's x axis, so a point at depth ``z`` shows
+    in the right image ``fx * baseline_m / z`` pixels left of where it shows in the left one.
+
+    Attributes:
+        camera: the rectified intrinsics of both images.
+        baseline_m: distance between the two camera centres (> 0).
+        body_from_left: (4, 4) float64 pose of the rectified left camera on the body the
+            source's ground truth and IMU refer to (identity when they refer to the left
+            camera, as KITTI's do).
+    """
+
+    camera: PinholeCamera
+    baseline_m: float
+    body_from_left: NDArray[np.float64] = field(default_factory=lambda: np.eye(4))
+
+
+@dataclass(frozen=True)
+class StereoFrame:
+    """A rectified stereo pair taken at one instant.
+
+    Attributes:
+        stamp_ns: int64 nanoseconds of the left image.
+        left, right: (H, W) uint8 grey or (H, W, 3) uint8 RGB images, rectified, same size.
+        rig: the pair's geometry.
+        right_stamp_ns: stamp of the right image it was paired with.
+        name: where the pair came from (file names, or topics and index), for messages.
+    """
+
+    stamp_ns: int
+    left: NDArray[np.uint8]
+    right: NDArray[np.uint8]
+    rig: StereoRig
+    right_stamp_ns: int | None = None
+    name: str = ""
+
+
+@dataclass(frozen=True)
 class ScanFrame:
     """One sweep of a 2-D laser scanner, as ``sensor_msgs/LaserScan`` records it.
 
@@ -245,8 +286,9 @@ class ScanFrame:
             return np.isposinf(r) | (np.isfinite(r) & (r > self.range_max_m))
 
 
-Frame = RgbdFrame | ImageFrame | OdometryFrame | LandmarkFrame | ImuFrame | ScanFrame
-"""Frame kinds, by the name a pipeline asks for: rgbd, image, odometry, landmarks, imu, scan."""
+Frame = RgbdFrame | ImageFrame | OdometryFrame | LandmarkFrame | ImuFrame | ScanFrame | StereoFrame
+"""Frame kinds, by the name a pipeline asks for: rgbd, image, odometry, landmarks, imu, scan,
+stereo."""
 
 
 @dataclass(frozen=True)

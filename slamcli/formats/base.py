@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 
 from slamcli.types import Frame, LandmarkMap, PinholeCamera, ProgressFn, Trajectory
 
-ALL_FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu", "scan")
+ALL_FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu", "scan", "stereo")
 """Every frame kind a source may be asked for."""
 
 
