@@ -220,6 +220,8 @@ def _show(info: SourceInfo) -> None:
             items["frames"] = f"{info.frames} paired RGB-D frames"
     elif any(s.kind == "scan" for s in info.streams):
         items = _scan_items(info)
+    elif any(s.kind == "stereo" for s in info.streams):
+        items = _stereo_items(info)
     else:
         items = {"frames": f"{info.frames} paired RGB-D frames"}
     if d.get("rgb_topic"):
@@ -351,4 +353,26 @@ def _scan_items(info: Any) -> dict[str, Any]:
             None,
         )
     items["odometry"] = odometry or "none (scans alone: run lidar matches them without a guess)"
+    return items
+
+
+def _stereo_items(info: SourceInfo) -> dict[str, Any]:
+    """What a stereo sequence holds: its pairs, their size, the baseline, where times come from."""
+    d = info.details
+    items: dict[str, Any] = {
+        "pairs": ", ".join(
+            f"{s.count}" + (f" ({s.detail})" if s.detail else "")
+            for s in info.streams
+            if s.kind == "stereo"
+        ),
+    }
+    size = d.get("image_size")
+    if size:
+        colour = d.get("colour")
+        shade = "" if colour is None else (", colour" if colour else ", grey")
+        items["image size"] = f"{size[0]}x{size[1]}{shade}"
+    if d.get("baseline_m") is not None:
+        items["baseline"] = f"{d['baseline_m']:.4f} m"
+    if d.get("times_source"):
+        items["times"] = d["times_source"]
     return items

@@ -21,6 +21,8 @@ SOURCES: dict[str, str] = {
     "victoria": "slamcli.formats.landmarks:VictoriaParkSource",
     "landmarks": "slamcli.formats.landmarks:LandmarkWorldSource",
     "carmen": "slamcli.formats.carmen:CarmenSource",
+    "kitti": "slamcli.formats.kitti:KittiSource",
+    "euroc": "slamcli.formats.euroc:EurocSource",
 }
 """Source classes by format name, as ``module:Class`` so a source's module (and what it
 imports: ``mcap``, OpenCV, ...) loads only when that source is used; :func:`source_class`
@@ -36,6 +38,8 @@ SNIFFERS: dict[str, Callable[[str | Path], bool]] = {
     "victoria": sniff.victoria_park,
     "landmarks": sniff.landmark_world,
     "carmen": sniff.carmen,
+    "kitti": sniff.kitti,
+    "euroc": sniff.euroc,
 }
 """The cheap test of each format (what its class's ``sniff`` calls), importing no source.
 
@@ -44,7 +48,8 @@ or color/; MCAP: suffix or magic; MRCLAM: Barcodes.dat and RobotN_Odometry.dat; 
 the first record's keyword; synth landmarks: odometry.csv and measurements.csv; CARMEN: a
 .log/.clf suffix and the first message's keyword), so the order only matters for odd mixtures.
 ROS 1 bags: a .bag suffix or '#ROSBAG V'; ROS 2 bags: a folder with rosbag2's metadata.yaml, or
-a .db3 file."""
+a .db3 file; KITTI: a folder with calib.txt beside image_0/ (image_2/, image_l/); EuRoC / ASL:
+mav0/cam0/data.csv, or a mav0 folder itself."""
 
 
 def source_class(name: str) -> Any:
@@ -66,7 +71,9 @@ _LAYOUTS = (
     "MCAP magic; a Victoria Park file has ODOMETRY and LANDMARK lines; a CARMEN log (.log or "
     ".clf, optionally gzipped) starts with CARMEN messages (PARAM, ODOM, FLASER, ROBOTLASER1, ...)"
     "; a ROS 1 bag starts with '#ROSBAG V2.0'; a ROS 2 bag folder has rosbag2's metadata.yaml "
-    "beside its .db3 or .mcap files"
+    "beside its .db3 or .mcap files; a KITTI odometry folder has calib.txt beside image_0/ and "
+    "image_1/ (or image_2/ and image_3/, or image_l/ and image_r/); a EuRoC / ASL folder holds "
+    "mav0/ (or is mav0/) with cam0/ and cam1/ (data.csv, data/, sensor.yaml) and imu0/"
 )
 
 

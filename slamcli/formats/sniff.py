@@ -38,6 +38,13 @@ CARMEN_KEYWORD = re.compile(
 REDWOOD_COLOUR_FOLDERS = ("image", "color")
 """The colour-image folders of an Open3D / Redwood RGB-D folder, in the order looked for."""
 
+KITTI_PAIR_FOLDERS = (("image_0", "image_1"), ("image_2", "image_3"), ("image_l", "image_r"))
+"""The (left, right) image folders of a KITTI odometry sequence, in the order looked for: grey,
+colour, and the ``image_l``/``image_r`` naming of excerpts."""
+
+KITTI_CALIB = "calib.txt"
+"""The projection matrices of a KITTI odometry sequence."""
+
 _HEAD_BYTES = 4096
 
 
@@ -151,6 +158,27 @@ def carmen(path: str | Path) -> bool:
     return False
 
 
+def kitti(path: str | Path) -> bool:
+    """A folder with ``calib.txt`` beside a left image folder of :data:`KITTI_PAIR_FOLDERS`."""
+    p = Path(path)
+    return (
+        p.is_dir()
+        and (p / KITTI_CALIB).is_file()
+        and any((p / left).is_dir() for left, _ in KITTI_PAIR_FOLDERS)
+    )
+
+
+def euroc(path: str | Path) -> bool:
+    """A EuRoC / ASL folder: ``mav0/cam0/data.csv`` inside it, or ``cam0/data.csv`` and
+    ``cam1/`` in a folder named ``mav0``."""
+    p = Path(path)
+    if not p.is_dir():
+        return False
+    if (p / "mav0" / "cam0" / "data.csv").is_file():
+        return True
+    return p.name == "mav0" and (p / "cam0" / "data.csv").is_file() and (p / "cam1").is_dir()
+
+
 def landmark_world(path: str | Path) -> bool:
     """A ``slamcli synth landmarks`` folder: ``odometry.csv`` and ``measurements.csv``."""
     p = Path(path)
@@ -161,12 +189,16 @@ __all__ = [
     "CARMEN_KEYWORD",
     "CARMEN_SUFFIXES",
     "GZIP_MAGIC",
+    "KITTI_CALIB",
+    "KITTI_PAIR_FOLDERS",
     "MCAP_MAGIC",
     "REDWOOD_COLOUR_FOLDERS",
     "ROSBAG2_METADATA",
     "ROSBAG_MAGIC",
     "VICTORIA_KEYWORDS",
     "carmen",
+    "euroc",
+    "kitti",
     "landmark_world",
     "mcap",
     "mrclam",

@@ -1,0 +1,509 @@
+"""EuRoC / ASL folders as a :class:`~slamcli.formats.base.Source` of rectified stereo pairs and
+IMU samples.
+
+The layout (a folder holding ``mav0/``, or ``mav0/`` itself)::
+
+    mav0/cam0/data.csv      #timestamp [ns],filename     and cam0/data/<stamp>.png
+    mav0/cam0/sensor.yaml   T_BS, resolution, intrinsics, distortion (calibration.py)
+    mav0/cam1/...           the right camera, the same way
+    mav0/imu0/data.csv      t [ns], w_x w_y w_z [rad/s], a_x a_y a_z [m/s^2]
+    mav0/imu0/sensor.yaml   T_BS, rate_hz, noise densities and random walks
+    mav0/state_groundtruth_estimate0/data.csv   optional: EuRoC's ground truth of the body
+
+A stereo pair is a left and a right stamp whose images both exist. EuRoC's cameras are
+triggered together, so the two ``data.csv`` list equal stamps; they are paired one to one,
+nearest first, within ``max_dt`` (default :data:`PAIR_MAX_DT_S`, 1 ms), which takes equal
+stamps and tolerates a rounding of the last digits. Listed images that do not exist are left
+out of the pairs and reported by :meth:`EurocSource.info`. A pair whose images are not of the
+calibrated size (or cannot be decoded) is skipped with a warning naming the file and counted in
+:attr:`EurocSource.stats`, so a run reports the loss.
+
+The body frame is EuRoC's: the IMU's (``imu0`` ``T_BS`` is the identity there), which the
+ground truth of ``state_groundtruth_estimate0`` also follows; the rig's ``body_from_left``
+places the rectified left camera on it.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Collection, Iterator
+from dataclasses import dataclass
+from functools import cached_property
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.errors import ConfigError, FormatError, InputError
+from slamcli.formats import sniff
+from slamcli.formats.base import ALL_FRAME_KINDS, ReadStats, SourceBase, SourceInfo, StreamInfo
+from slamcli.formats.euroc.calibration import (
+    CameraSensor,
+    ImuSensor,
+    StereoRectification,
+    read_camera_sensor,
+    read_imu_sensor,
+    rectify_stereo,
+)
+from slamcli.formats.images import decode_image, image_size, read_image_file
+from slamcli.formats.pairing import associate_stamps
+from slamcli.formats.text import iter_data_lines, parse_count, parse_floats
+from slamcli.formats.trajectory import read_trajectory
+from slamcli.types import Frame, ImuFrame, ProgressFn, StereoFrame, StereoRig, Trajectory
+
+log = logging.getLogger(__name__)
+
+FRAME_KINDS = ("stereo", "imu")
+"""The frame kinds an ASL folder provides."""
+
+PAIR_MAX_DT_S = 0.001
+"""Default pairing tolerance of left and right stamps, seconds (EuRoC's are equal)."""
+
+GROUNDTRUTH_CSV = Path("state_groundtruth_estimate0") / "data.csv"
+"""EuRoC's ground truth of the body, relative to ``mav0/``."""
+
+GROUNDTRUTH_BESIDE = ("groundtruth_body.txt", "groundtruth.txt", "groundtruth.tum")
+"""Trajectory files looked for beside ``mav0/`` (not read: named in ``info`` only)."""
+
+NAMED = 3
+"""Images named in one problem line; ``details`` lists them all."""
+
+
+@dataclass(frozen=True)
+class ImageCsv:
+    """One camera's ``data.csv``, sorted by time.
+
+    Attributes:
+        path: the csv file (its images are in ``data/`` beside it).
+        stamps_ns: (N,) int64 nanoseconds.
+        files: N file names as listed.
+        lines: N 1-based line numbers, for messages.
+    """
+
+    path: Path
+    stamps_ns: NDArray[np.int64]
+    files: tuple[str, ...]
+    lines: tuple[int, ...]
+
+    def __len__(self) -> int:
+        return len(self.files)
+
+    def image(self, k: int) -> Path:
+        """The image file of entry ``k``."""
+        return self.path.parent / "data" / self.files[k]
+
+    def where(self, k: int) -> str:
+        """``"cam1/data.csv:97"``: where entry ``k`` is listed."""
+        return f"{self.path.parent.name}/{self.path.name}:{self.lines[k]}"
+
+
+def read_image_csv(path: str | Path) -> ImageCsv:
+    """Read an ASL camera ``data.csv`` (``#timestamp [ns],filename`` lines).
+
+    Raises:
+        InputError: the file is missing.
+        FormatError: a line without two fields or with a bad stamp (names file:line).
+    """
+    p = Path(path)
+    stamps: list[int] = []
+    files: list[str] = []
+    lines: list[int] = []
+    for number, fields in iter_data_lines(p, delimiter=","):
+        if len(fields) != 2 or not fields[1]:
+            raise FormatError(
+                p,
+                f"expected 'timestamp [ns],filename', found {len(fields)} field(s)",
+                number,
+                hint="an ASL camera data.csv has one 'stamp_ns,stamp_ns.png' line per image",
+            )
+        stamps.append(parse_count(fields[0], p, number, "timestamp", "whole nanoseconds"))
+        files.append(fields[1])
+        lines.append(number)
+    t = np.asarray(stamps, dtype=np.int64)
+    order = np.argsort(t, kind="stable")
+    return ImageCsv(p, t[order], tuple(files[i] for i in order), tuple(lines[i] for i in order))
+
+
+def read_imu_csv(
+    path: str | Path,
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
+    """Read an ASL ``imu0/data.csv``: t [ns], w_x w_y w_z [rad/s], a_x a_y a_z [m/s^2].
+
+    Returns:
+        (N,) int64 stamps, (N, 3) float64 gyro rad/s and (N, 3) float64 accel m/s², sorted by
+        time (stable).
+
+    Raises:
+        FormatError: a line without 7 fields, a bad stamp or value (names file:line).
+    """
+    p = Path(path)
+    stamps: list[int] = []
+    rows: list[list[str]] = []
+    numbers: list[int] = []
+    for number, fields in iter_data_lines(p, delimiter=","):
+        if len(fields) != 7:
+            raise FormatError(
+                p,
+                f"expected 7 comma-separated columns (t [ns], w_xyz, a_xyz), found {len(fields)}",
+                number,
+            )
+        stamps.append(parse_count(fields[0], p, number, "timestamp", "whole nanoseconds"))
+        rows.append(fields[1:])
+        numbers.append(number)
+    try:
+        values = np.array(rows, dtype=np.float64).reshape(-1, 6)
+    except ValueError:
+        # Slow path only on failure: name the line and column.
+        for number, fields in zip(numbers, rows, strict=True):
+            parse_floats(fields, p, number, "IMU value", first_column=2)
+        raise FormatError(p, "an IMU value is not a number") from None
+    bad = ~np.isfinite(values)
+    if bad.any():
+        row, col = np.argwhere(bad)[0]
+        raise FormatError(
+            p, f"column {col + 2}: IMU value {rows[row][col]!r} is not finite", numbers[row]
+        )
+    t = np.asarray(stamps, dtype=np.int64)
+    order = np.argsort(t, kind="stable")
+    return t[order], values[order, :3], values[order, 3:]
+
+
+def mav_folder(path: str | Path) -> Path:
+    """The ``mav0`` folder of an ASL input: ``path/mav0`` if it exists, else ``path``."""
+    p = Path(path)
+    return p / "mav0" if (p / "mav0").is_dir() else p
+
+
+class EurocSource(SourceBase):
+    """A EuRoC / ASL folder (see the module docstring) as a
+    :class:`~slamcli.formats.base.Source` of :class:`StereoFrame` and :class:`ImuFrame`.
+
+    Args:
+        path: the folder holding ``mav0/``, or ``mav0/`` itself.
+        max_dt: pairing tolerance of left and right stamps in seconds.
+
+    Raises:
+        InputError: not a folder, or ``cam0``/``cam1`` missing.
+        FormatError: a malformed ``data.csv`` or ``sensor.yaml`` (names file, line or key).
+        ConfigError: a bad option value.
+    """
+
+    format_name = "euroc"
+    frame_kinds = FRAME_KINDS
+    OPTIONS = ("max_dt",)
+
+    def __init__(self, path: str | Path, *, max_dt: float = PAIR_MAX_DT_S) -> None:
+        self.path = Path(path)
+        if not np.isfinite(max_dt) or max_dt <= 0:
+            raise ConfigError(f"max_dt must be a positive number of seconds, got {max_dt}")
+        if not self.path.is_dir():
+            raise InputError(f"{self.path}: a EuRoC / ASL input is a folder")
+        self.mav = mav_folder(self.path)
+        missing = [c for c in ("cam0", "cam1") if not (self.mav / c / "data.csv").is_file()]
+        if missing:
+            raise InputError(
+                f"{self.mav}: ASL folder has no "
+                + " and no ".join(c + "/data.csv" for c in missing),
+                hint="a EuRoC / ASL folder holds mav0/ with cam0/ and cam1/ (data.csv, data/, "
+                "sensor.yaml) and imu0/",
+            )
+        self.max_dt = float(max_dt)
+        self.stats = ReadStats()
+        self.left_csv = read_image_csv(self.mav / "cam0" / "data.csv")
+        self.right_csv = read_image_csv(self.mav / "cam1" / "data.csv")
+        self.left_sensor: CameraSensor = read_camera_sensor(self.mav / "cam0" / "sensor.yaml")
+        self.right_sensor: CameraSensor = read_camera_sensor(self.mav / "cam1" / "sensor.yaml")
+        self.rectification: StereoRectification = rectify_stereo(
+            self.left_sensor, self.right_sensor
+        )
+        self._imu_folder = self.mav / "imu0"
+        self.imu_sensor: ImuSensor | None = (
+            read_imu_sensor(self._imu_folder / "sensor.yaml")
+            if (self._imu_folder / "sensor.yaml").is_file()
+            else None
+        )
+        left_ok = self._existing(self.left_csv)
+        right_ok = self._existing(self.right_csv)
+        self.missing = [
+            f"{c.path.parent.name}/data/{c.files[k]} (listed at {c.where(k)})"
+            for c, ok in ((self.left_csv, left_ok), (self.right_csv, right_ok))
+            for k in np.flatnonzero(~ok).tolist()
+        ]
+        li, ri = associate_stamps(
+            self.left_csv.stamps_ns[left_ok],
+            self.right_csv.stamps_ns[right_ok],
+            round(self.max_dt * 1e9),
+        )
+        self.left_index = np.flatnonzero(left_ok)[li]
+        self.right_index = np.flatnonzero(right_ok)[ri]
+
+    @staticmethod
+    def _existing(csv: ImageCsv) -> NDArray[np.bool_]:
+        return np.array([csv.image(k).is_file() for k in range(len(csv))], dtype=bool)
+
+    @classmethod
+    def sniff(cls, path: str | Path) -> bool:
+        """A folder with ``mav0/cam0/data.csv``, or a ``mav0`` folder itself."""
+        return sniff.euroc(path)
+
+    def __len__(self) -> int:
+        """Number of stereo pairs (left and right images both present)."""
+        return int(self.left_index.size)
+
+    @property
+    def rig(self) -> StereoRig:
+        """The rectified :class:`~slamcli.types.StereoRig` every frame carries."""
+        return self.rectification.rig
+
+    @property
+    def pair_stamps_ns(self) -> NDArray[np.int64]:
+        """(P,) int64 left stamps of the pairs, in time order."""
+        return self.left_csv.stamps_ns[self.left_index]
+
+    @cached_property
+    def _imu(
+        self,
+    ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]] | None:
+        p = self._imu_folder / "data.csv"
+        return read_imu_csv(p) if p.is_file() else None
+
+    @cached_property
+    def _groundtruth(self) -> Trajectory | None:
+        p = self.mav / GROUNDTRUTH_CSV
+        return read_trajectory(p, "euroc") if p.is_file() else None
+
+    def groundtruth(self) -> Trajectory | None:
+        """EuRoC's ground truth: world_from_body (body = IMU frame), or None without it."""
+        return self._groundtruth
+
+    def frames(self, kinds: Collection[str] = ("stereo",)) -> Iterator[Frame]:
+        """Yield the requested kinds in time order (at equal stamps: IMU first).
+
+        ``stereo`` gives a rectified :class:`StereoFrame` (grey (H, W) uint8, or RGB for colour
+        images) per pair, ``imu`` an :class:`ImuFrame` per ``imu0`` row. Pairs whose images
+        cannot be decoded or are not of the calibrated size are skipped, logged and counted.
+
+        Raises:
+            ConfigError: an unknown kind.
+            InputError: a kind an ASL folder does not have, or ``imu`` without ``imu0/data.csv``.
+        """
+        wanted = self._check_kinds(kinds)
+        imu = self._imu if "imu" in wanted else None
+        if "imu" in wanted and imu is None:
+            raise InputError(
+                f"{self.mav}: has no imu0/data.csv: no IMU frames",
+                hint="run without the IMU, or give the folder's imu0/",
+            )
+        imu_t = imu[0] if imu is not None else np.zeros(0, dtype=np.int64)
+        pair_t = self.pair_stamps_ns if "stereo" in wanted else np.zeros(0, dtype=np.int64)
+        t = np.concatenate([imu_t, pair_t])
+        code = np.concatenate([np.zeros(imu_t.size, np.int64), np.ones(pair_t.size, np.int64)])
+        idx = np.concatenate([np.arange(imu_t.size), np.arange(pair_t.size)]).astype(np.int64)
+        for c, k in zip(
+            *(a[np.lexsort((idx, code, t))].tolist() for a in (code, idx)), strict=True
+        ):
+            if c == 0 and imu is not None:
+                self.stats.read += 1
+                yield ImuFrame(int(imu[0][k]), accel_mps2=imu[2][k], gyro_radps=imu[1][k])
+                continue
+            frame = self._pair(k)
+            if frame is not None:
+                self.stats.read += 1
+                yield frame
+
+    def _check_kinds(self, kinds: Collection[str]) -> set[str]:
+        wanted = set([kinds] if isinstance(kinds, str) else kinds)
+        unknown = sorted(wanted - set(ALL_FRAME_KINDS))
+        if unknown:
+            raise ConfigError(
+                f"unknown frame kind(s) {', '.join(unknown)}",
+                hint=f"kinds: {', '.join(ALL_FRAME_KINDS)}",
+            )
+        absent = sorted(wanted - set(FRAME_KINDS))
+        if absent:
+            raise InputError(
+                f"{self.path}: a EuRoC / ASL folder has no {', '.join(absent)} frames",
+                hint=f"it provides {', '.join(FRAME_KINDS)}",
+            )
+        return wanted
+
+    def _pair(self, k: int) -> StereoFrame | None:
+        """Pair ``k`` rectified, or None (logged and counted) when an image is unusable."""
+        li, ri = int(self.left_index[k]), int(self.right_index[k])
+        left = self._load(self.left_csv, li)
+        right = self._load(self.right_csv, ri) if left is not None else None
+        name = f"cam0/data/{self.left_csv.files[li]} + cam1/data/{self.right_csv.files[ri]}"
+        if left is not None and right is not None and left.ndim != right.ndim:
+            log.warning("skipping the stereo pair %s: one image is grey, the other colour", name)
+            left = None
+        if left is None or right is None:
+            self.stats.skipped += 1
+            self.stats.skipped_names.append(name)
+            return None
+        left, right = self.rectification.remap(left, right)
+        return StereoFrame(
+            int(self.left_csv.stamps_ns[li]),
+            left,
+            right,
+            self.rig,
+            int(self.right_csv.stamps_ns[ri]),
+            name,
+        )
+
+    def _load(self, csv: ImageCsv, k: int) -> NDArray[np.uint8] | None:
+        """Image ``k`` of ``csv`` as grey (H, W) or RGB (H, W, 3) uint8, or None (logged) when
+        it is unreadable or not of the calibrated size."""
+        import cv2
+
+        camera = self.rig.camera
+        path = csv.image(k)
+        data, reason = read_image_file(path)
+        img: NDArray[Any] | None = None
+        if data is not None:
+            img, reason = decode_image(
+                data, cv2.IMREAD_UNCHANGED, expect=(camera.width, camera.height)
+            )
+        if img is not None and img.dtype != np.uint8:
+            reason = f"is {img.dtype}, expected 8-bit"
+            img = None
+        if img is None:
+            log.warning(
+                "skipping the stereo pair of %s: %s (the calibration is %dx%d)",
+                path,
+                reason,
+                camera.width,
+                camera.height,
+            )
+            return None
+        if img.ndim == 3:
+            code = cv2.COLOR_BGRA2RGB if img.shape[2] == 4 else cv2.COLOR_BGR2RGB
+            img = cv2.cvtColor(img, code)
+        return np.ascontiguousarray(img)
+
+    def info(self, deep: bool = False, progress: ProgressFn | None = None) -> SourceInfo:
+        """Streams (cameras, stereo pairs, IMU, ground truth), the rectified camera, baseline,
+        distortion model, IMU noise settings and problems (missing images, unpaired stamps).
+
+        ``deep`` also reads every paired image and checks its size from its header, reporting
+        ``progress(done, total)``.
+        """
+        problems: list[str] = []
+        rig = self.rig
+        streams = [
+            _stream("cam0", "image", self.left_csv.stamps_ns, "mav0/cam0/data.csv"),
+            _stream("cam1", "image", self.right_csv.stamps_ns, "mav0/cam1/data.csv"),
+            _stream("stereo", "stereo", self.pair_stamps_ns, "rectified pairs"),
+        ]
+        details: dict[str, Any] = {
+            "mav0": str(self.mav),
+            "baseline_m": rig.baseline_m,
+            "distortion_model": self.left_sensor.model,
+            "raw_cameras": {
+                "cam0": self.left_sensor.camera.to_dict()
+                | {"coefficients": list(self.left_sensor.coefficients)},
+                "cam1": self.right_sensor.camera.to_dict()
+                | {"coefficients": list(self.right_sensor.coefficients)},
+            },
+            "body_from_left": rig.body_from_left.tolist(),
+            "pair_max_dt_s": self.max_dt,
+            "missing_images": list(self.missing),
+            "unpaired_left": len(self.left_csv) - len(self),
+            "unpaired_right": len(self.right_csv) - len(self),
+        }
+        if self.missing:
+            more = f", and {len(self.missing) - NAMED} more" if len(self.missing) > NAMED else ""
+            problems.append(
+                f"{len(self.missing)} listed image(s) missing: "
+                + "; ".join(self.missing[:NAMED])
+                + more
+            )
+        self._imu_info(streams, details, problems)
+        gt = self.groundtruth()
+        if gt is not None:
+            streams.append(_stream("groundtruth", "pose", gt.stamps_ns, str(GROUNDTRUTH_CSV)))
+        else:
+            beside = [n for n in GROUNDTRUTH_BESIDE if (self.mav.parent / n).is_file()]
+            note = "ground truth: none in mav0" + (
+                f"; {beside[0]} beside it (pass --groundtruth)" if beside else ""
+            )
+            details["groundtruth"] = note
+            if beside:
+                problems.append(note)
+        if deep:
+            wrong = self._check_sizes(progress)
+            details["wrong_size"] = wrong
+            if wrong:
+                problems.append(
+                    f"{len(wrong)} image(s) unreadable or not of the calibrated size: "
+                    + "; ".join(wrong[:NAMED])
+                )
+        return SourceInfo(
+            format=self.format_name,
+            path=str(self.path),
+            streams=streams,
+            frames=len(self),
+            groundtruth=len(gt) if gt is not None else 0,
+            camera=rig.camera,
+            camera_source=(
+                f"rectified from mav0/cam0/sensor.yaml and mav0/cam1/sensor.yaml "
+                f"({self.left_sensor.model}, baseline {rig.baseline_m:.4f} m)"
+            ),
+            problems=problems,
+            details=details,
+        )
+
+    def _imu_info(
+        self, streams: list[StreamInfo], details: dict[str, Any], problems: list[str]
+    ) -> None:
+        imu = self._imu
+        if imu is None:
+            problems.append("no imu0/data.csv: no IMU frames")
+        else:
+            streams.append(_stream("imu0", "imu", imu[0], "mav0/imu0/data.csv"))
+        if self.imu_sensor is not None:
+            details["imu"] = {"rate_hz": self.imu_sensor.rate_hz} | self.imu_sensor.noise()
+        elif imu is not None:
+            problems.append("no imu0/sensor.yaml: the IMU noise settings are unknown")
+
+    def _check_sizes(self, progress: ProgressFn | None) -> list[str]:
+        camera = self.rig.camera
+        jobs = [(self.left_csv, int(k)) for k in self.left_index] + [
+            (self.right_csv, int(k)) for k in self.right_index
+        ]
+        wrong: list[str] = []
+        for done, (csv, k) in enumerate(jobs, start=1):
+            name = f"{csv.path.parent.name}/data/{csv.files[k]}"
+            data, reason = read_image_file(csv.image(k))
+            try:
+                size = image_size(data) if data is not None else None
+            except ValueError as exc:
+                size, reason = None, str(exc)
+            if data is None or reason:
+                wrong.append(f"{name} {reason}")
+            elif size is not None and size != (camera.width, camera.height):
+                wrong.append(f"{name} is {size[0]}x{size[1]}")
+            if progress is not None:
+                progress(done, len(jobs))
+        return wrong
+
+
+def _stream(name: str, kind: str, stamps_ns: NDArray[np.int64], detail: str) -> StreamInfo:
+    n = int(stamps_ns.size)
+    if n == 0:
+        return StreamInfo(name, kind, 0, detail=detail)
+    start, end = float(stamps_ns[0]) * 1e-9, float(stamps_ns[-1]) * 1e-9
+    span = (int(stamps_ns[-1]) - int(stamps_ns[0])) * 1e-9
+    rate = (n - 1) / span if n > 1 and span > 0 else None
+    return StreamInfo(name, kind, n, rate, start, end, detail)
+
+
+__all__ = [
+    "FRAME_KINDS",
+    "PAIR_MAX_DT_S",
+    "EurocSource",
+    "ImageCsv",
+    "mav_folder",
+    "read_image_csv",
+    "read_imu_csv",
+]
