@@ -14,9 +14,45 @@ from typing import Any, Generic, Protocol, TypeVar
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.errors import ConfigError, InputError
 from slamcli.types import Frame, LandmarkMap, PinholeCamera, ProgressFn, Trajectory
 
 ALL_FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu", "scan", "stereo")
+
+
+def known_kinds(kinds: Collection[str]) -> set[str]:
+    """The frame kinds asked for (a single name or several), each one of
+    :data:`ALL_FRAME_KINDS`.
+
+    Raises:
+        ConfigError: a kind no source gives.
+    """
+    wanted = set([kinds] if isinstance(kinds, str) else kinds)
+    unknown = sorted(wanted - set(ALL_FRAME_KINDS))
+    if unknown:
+        raise ConfigError(
+            f"unknown frame kind(s) {', '.join(unknown)}",
+            hint=f"kinds: {', '.join(ALL_FRAME_KINDS)}",
+        )
+    return wanted
+
+
+def provided_kinds(wanted: set[str], provided: Collection[str], path: Path, label: str) -> set[str]:
+    """``wanted``, when a source (``label``, e.g. "a KITTI odometry folder") at ``path``
+    gives every one of those kinds.
+
+    Raises:
+        InputError: naming the kinds it does not give and those it does.
+    """
+    absent = sorted(wanted - set(provided))
+    if absent:
+        raise InputError(
+            f"{path}: {label} has no {', '.join(absent)} frames",
+            hint=f"it provides {', '.join(provided)}",
+        )
+    return wanted
+
+
 """Every frame kind a source may be asked for."""
 
 

@@ -42,15 +42,16 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from slamcli.errors import ConfigError, FormatError, InputError
+from slamcli.errors import FormatError, InputError
 from slamcli.formats import sniff
 from slamcli.formats.base import (
-    ALL_FRAME_KINDS,
     Frame,
     ReadStats,
     SourceBase,
     SourceInfo,
     StreamInfo,
+    known_kinds,
+    provided_kinds,
 )
 from slamcli.formats.images import decode_image, read_image_file
 from slamcli.formats.text import format_stamp, iter_data_lines, parse_floats, parse_stamp_ns
@@ -421,20 +422,7 @@ class KittiSource(SourceBase):
         return self._groundtruth
 
     def _check_kinds(self, kinds: Collection[str]) -> set[str]:
-        wanted = set([kinds] if isinstance(kinds, str) else kinds)
-        unknown = sorted(wanted - set(ALL_FRAME_KINDS))
-        if unknown:
-            raise ConfigError(
-                f"unknown frame kind(s) {', '.join(unknown)}",
-                hint=f"kinds: {', '.join(ALL_FRAME_KINDS)}",
-            )
-        absent = sorted(wanted - set(FRAME_KINDS))
-        if absent:
-            raise InputError(
-                f"{self.path}: a KITTI odometry folder has no {', '.join(absent)} frames",
-                hint=f"it provides {', '.join(FRAME_KINDS)}",
-            )
-        return wanted
+        return provided_kinds(known_kinds(kinds), FRAME_KINDS, self.path, "a KITTI odometry folder")
 
     def frames(self, kinds: Collection[str] = ("stereo",)) -> Iterator[Frame]:
         """Yield frames in frame order, reading each image when its frame comes.

@@ -20,8 +20,15 @@ from typing import Any, ClassVar, cast
 import numpy as np
 from numpy.typing import NDArray
 
-from slamcli.errors import ConfigError, FormatError, InputError
-from slamcli.formats.base import ALL_FRAME_KINDS, ReadStats, SourceBase, SourceInfo, StreamInfo
+from slamcli.errors import FormatError, InputError
+from slamcli.formats.base import (
+    ReadStats,
+    SourceBase,
+    SourceInfo,
+    StreamInfo,
+    known_kinds,
+    provided_kinds,
+)
 from slamcli.formats.images import decode_image, read_image_file
 from slamcli.types import PinholeCamera, ProgressFn, Trajectory
 
@@ -108,21 +115,9 @@ class RgbdFolderSource(SourceBase):
 
     def _check_kinds(self, kinds: Collection[str]) -> set[str]:
         """The frame kinds asked for, checked against the known ones and the folder's."""
-        wanted = set([kinds] if isinstance(kinds, str) else kinds)
-        unknown = sorted(wanted - set(ALL_FRAME_KINDS))
-        if unknown:
-            raise ConfigError(
-                f"unknown frame kind(s) {', '.join(unknown)}",
-                hint=f"kinds: {', '.join(ALL_FRAME_KINDS)}",
-            )
+        wanted = known_kinds(kinds)
         self._check_depth_wanted(wanted)
-        absent = sorted(wanted - set(self.frame_kinds))
-        if absent:
-            raise InputError(
-                f"{self.path}: {self.folder_label} has no {', '.join(absent)} frames",
-                hint=f"it provides {', '.join(self.frame_kinds)}",
-            )
-        return wanted
+        return provided_kinds(wanted, self.frame_kinds, self.path, self.folder_label)
 
     def _check_depth_wanted(self, wanted: set[str]) -> None:
         """Raise when RGB-D frames are wanted and the folder cannot give them."""

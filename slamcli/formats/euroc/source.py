@@ -37,7 +37,14 @@ from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats import sniff
-from slamcli.formats.base import ALL_FRAME_KINDS, ReadStats, SourceBase, SourceInfo, StreamInfo
+from slamcli.formats.base import (
+    ReadStats,
+    SourceBase,
+    SourceInfo,
+    StreamInfo,
+    known_kinds,
+    provided_kinds,
+)
 from slamcli.formats.euroc.calibration import (
     CameraSensor,
     ImuSensor,
@@ -313,20 +320,7 @@ class EurocSource(SourceBase):
                 yield frame
 
     def _check_kinds(self, kinds: Collection[str]) -> set[str]:
-        wanted = set([kinds] if isinstance(kinds, str) else kinds)
-        unknown = sorted(wanted - set(ALL_FRAME_KINDS))
-        if unknown:
-            raise ConfigError(
-                f"unknown frame kind(s) {', '.join(unknown)}",
-                hint=f"kinds: {', '.join(ALL_FRAME_KINDS)}",
-            )
-        absent = sorted(wanted - set(FRAME_KINDS))
-        if absent:
-            raise InputError(
-                f"{self.path}: a EuRoC / ASL folder has no {', '.join(absent)} frames",
-                hint=f"it provides {', '.join(FRAME_KINDS)}",
-            )
-        return wanted
+        return provided_kinds(known_kinds(kinds), FRAME_KINDS, self.path, "a EuRoC / ASL folder")
 
     def _pair(self, k: int) -> StereoFrame | None:
         """Pair ``k`` rectified, or None (logged and counted) when an image is unusable."""
