@@ -33,7 +33,7 @@ import logging
 import struct
 import zlib
 from bisect import bisect_left, bisect_right
-from collections.abc import Collection, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import replace
 from operator import itemgetter
@@ -108,6 +108,16 @@ class MessageLog(Protocol):
     ) -> Iterator[RawMessage]: ...
 
     def close(self) -> None: ...
+
+
+class DamagedLog(Protocol):
+    """What :func:`skip_bad_chunk` records damage in: a log's path, health and strictness."""
+
+    path: Path
+    strict: bool
+
+    @property
+    def health(self) -> LogHealth: ...
 
 
 class McapLog(Closing):
@@ -209,19 +219,8 @@ class McapLog(Closing):
                 self._file, self._chunk_indexes, self._channels, self.max_chunk_bytes, self.path
             )
         if self._stats is None:
-            counted = {cid: ChannelStats() for cid in self._channels}
-            for msg in self.messages():
-                st = counted.get(msg.channel.id)
-                if st is None:
-                    st = counted[msg.channel.id] = ChannelStats()
-                if st.first_ns is None:
-                    st.first_ns = msg.log_time_ns
-                st.count += 1
-                st.last_ns = msg.log_time_ns
-            for cid in self._channels:
-                counted.setdefault(cid, ChannelStats())
+            self._stats = count_stats(self.messages(), lambda: self._channels)
             self._channels_complete = True
-            self._stats = counted
         return {cid: replace(st) for cid, st in self._stats.items()}
 
     def messages(
@@ -242,11 +241,7 @@ class McapLog(Closing):
         """
         if self._file.closed:
             raise ValueError(f"{self.path}: McapLog is closed")
-        if isinstance(topics, str):
-            topics = (topics,)
-        wanted_topics = None if topics is None else frozenset(topics)
-        lo = 0 if start_ns is None else int(start_ns)
-        hi = _NO_END if end_ns is None else int(end_ns)
+        wanted_topics, lo, hi = message_window(topics, start_ns, end_ns)
         if self._chunk_indexes:
             return self._indexed_messages(wanted_topics, lo, hi)
         return self._streamed_messages(wanted_topics, lo, hi)
@@ -385,30 +380,14 @@ class McapLog(Closing):
         what: str = "chunk",
         oversize: bool = False,
     ) -> None:
-        entry = (start, end, offset)
-        if entry in self.health.bad_chunks:
-            return
-        span = f"{format_stamp(start, 3)}-{format_stamp(end, 3)} s"
-        raise_limit = "raise the limit with --max-chunk-mb (max_chunk_bytes) if the log is genuine"
-        if self.strict:
-            skip = "run without --strict to skip it and use the rest"
-            raise InputError(
-                f"{self.path}: the {what} at byte {offset} (messages {span}) {reason}",
-                hint=f"{raise_limit}, or {skip}"
-                if oversize
-                else f"{skip}; 'mcap doctor' lists the damage",
-            )
-        self.health.bad_chunks.append(entry)
-        if oversize:
-            self.health.oversized[offset] = (what, reason)
-        logger.warning(
-            "%s: skipped the %s at byte %d: it %s; messages %s are lost%s",
-            self.path,
-            what,
-            offset,
+        skip_bad_chunk(
+            self,
+            (start, end, offset),
             reason,
-            span,
-            f" ({raise_limit})" if oversize else "",
+            what=what,
+            oversize=oversize,
+            kind="log",
+            strict_hint="; 'mcap doctor' lists the damage",
         )
 
     def _truncated_at(self, stop: int, last_good: int | None) -> None:
@@ -718,3 +697,78 @@ class _OpenChunk:
 
 def _chunk_key(ci: ChunkIndex) -> tuple[int, int]:
     return ci.message_start_time, ci.chunk_start_offset
+
+
+def message_window(
+    topics: Collection[str] | None, start_ns: int | None, end_ns: int | None
+) -> tuple[frozenset[str] | None, int, int]:
+    """A ``messages()`` call's arguments as (topics or None for all, first log time included,
+    log time to stop at)."""
+    if isinstance(topics, str):
+        topics = (topics,)
+    wanted = None if topics is None else frozenset(topics)
+    lo = 0 if start_ns is None else int(start_ns)
+    hi = _NO_END if end_ns is None else int(end_ns)
+    return wanted, lo, hi
+
+
+def count_stats(
+    messages: Iterable[RawMessage], channel_ids: Callable[[], Iterable[int]]
+) -> dict[int, ChannelStats]:
+    """Message count and first/last log time per channel id, by one pass over ``messages``;
+    the ids ``channel_ids()`` names after the pass (a pass may find channels) get empty
+    statistics when they had no message."""
+    counted: dict[int, ChannelStats] = {}
+    for msg in messages:
+        st = counted.setdefault(msg.channel.id, ChannelStats())
+        if st.first_ns is None:
+            st.first_ns = msg.log_time_ns
+        st.count += 1
+        st.last_ns = msg.log_time_ns
+    for cid in channel_ids():
+        counted.setdefault(cid, ChannelStats())
+    return counted
+
+
+def skip_bad_chunk(
+    log: DamagedLog,
+    entry: tuple[int, int, int],
+    reason: str,
+    *,
+    what: str,
+    oversize: bool,
+    kind: str,
+    strict_hint: str = "",
+) -> None:
+    """Record a damaged chunk (``entry``: first and last log time, byte offset) of ``log``
+    in its health and warn once; with ``strict`` raise instead.
+
+    ``kind`` names the file ("log", "bag") in the hint; ``strict_hint`` is added to the hint
+    of a chunk that is damaged, not merely oversized.
+
+    Raises:
+        InputError: with ``strict``.
+    """
+    if entry in log.health.bad_chunks:
+        return
+    start, end, offset = entry
+    span = f"{format_stamp(start, 3)}-{format_stamp(end, 3)} s"
+    raise_limit = f"raise the limit with --max-chunk-mb (max_chunk_bytes) if the {kind} is genuine"
+    if log.strict:
+        skip = "run without --strict to skip it and use the rest"
+        raise InputError(
+            f"{log.path}: the {what} at byte {offset} (messages {span}) {reason}",
+            hint=f"{raise_limit}, or {skip}" if oversize else f"{skip}{strict_hint}",
+        )
+    log.health.bad_chunks.append(entry)
+    if oversize:
+        log.health.oversized[offset] = (what, reason)
+    logger.warning(
+        "%s: skipped the %s at byte %d: it %s; messages %s are lost%s",
+        log.path,
+        what,
+        offset,
+        reason,
+        span,
+        f" ({raise_limit})" if oversize else "",
+    )

@@ -35,7 +35,13 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats.base import Closing
 from slamcli.formats.mcap.chunks import BadChunkError, Decompressor, OversizeError, mb
-from slamcli.formats.mcap.reader import DEFAULT_MAX_CHUNK_BYTES, DEFAULT_REORDER_WINDOW_NS
+from slamcli.formats.mcap.reader import (
+    DEFAULT_MAX_CHUNK_BYTES,
+    DEFAULT_REORDER_WINDOW_NS,
+    count_stats,
+    message_window,
+    skip_bad_chunk,
+)
 from slamcli.formats.mcap.records import ChannelInfo, ChannelStats, RawMessage
 from slamcli.formats.rosbag.health import BagHealth, TopicChannels
 from slamcli.formats.rosbag.ros1 import (
@@ -64,7 +70,6 @@ from slamcli.formats.text import format_stamp
 
 logger = logging.getLogger(__name__)
 
-_NO_END = 1 << 64
 _BLOCK = 4096
 """Index entries turned into Python values at a time."""
 _OPEN_CHUNKS = 3
@@ -209,16 +214,7 @@ class Ros1BagLog(Closing):
         """Message count and first/last log time (ns) per channel id: from the index, or
         counted by one full pass when the records are walked."""
         if self._stats is None:
-            counted = {cid: ChannelStats() for cid in self._topics.by_id}
-            for msg in self.messages():
-                st = counted.setdefault(msg.channel.id, ChannelStats())
-                if st.first_ns is None:
-                    st.first_ns = msg.log_time_ns
-                st.count += 1
-                st.last_ns = msg.log_time_ns
-            for cid in self._topics.by_id:
-                counted.setdefault(cid, ChannelStats())
-            self._stats = counted
+            self._stats = count_stats(self.messages(), lambda: self._topics.by_id)
         return {cid: replace(st) for cid, st in self._stats.items()}
 
     def messages(
@@ -240,11 +236,7 @@ class Ros1BagLog(Closing):
         """
         if self._closed:
             raise ValueError(f"{self.path}: Ros1BagLog is closed")
-        if isinstance(topics, str):
-            topics = (topics,)
-        wanted = None if topics is None else frozenset(topics)
-        lo = 0 if start_ns is None else int(start_ns)
-        hi = _NO_END if end_ns is None else int(end_ns)
+        wanted, lo, hi = message_window(topics, start_ns, end_ns)
         if self.index is not None:
             return self._indexed(self.index, wanted, lo, hi)
         return self._walked(wanted, lo, hi)
@@ -525,29 +517,7 @@ class Ros1BagLog(Closing):
         near = 0 if self._last_good is None else self._last_good
         known = self.index.chunk_times.get(offset) if self.index is not None else None
         start, end = known if known is not None else (near, near)
-        entry = (start, end, offset)
-        if entry in self.health.bad_chunks:
-            return
-        span = f"{format_stamp(start, 3)}-{format_stamp(end, 3)} s"
-        raise_limit = "raise the limit with --max-chunk-mb (max_chunk_bytes) if the bag is genuine"
-        if self.strict:
-            skip = "run without --strict to skip it and use the rest"
-            raise InputError(
-                f"{self.path}: the {what} at byte {offset} (messages {span}) {reason}",
-                hint=f"{raise_limit}, or {skip}" if oversize else skip,
-            )
-        self.health.bad_chunks.append(entry)
-        if oversize:
-            self.health.oversized[offset] = (what, reason)
-        logger.warning(
-            "%s: skipped the %s at byte %d: it %s; messages %s are lost%s",
-            self.path,
-            what,
-            offset,
-            reason,
-            span,
-            f" ({raise_limit})" if oversize else "",
-        )
+        skip_bad_chunk(self, (start, end, offset), reason, what=what, oversize=oversize, kind="bag")
 
     def _truncated_at(self, stop: int, last_good: int | None) -> None:
         first = self.health.truncated_at_byte is None

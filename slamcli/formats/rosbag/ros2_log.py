@@ -22,7 +22,13 @@ from typing import Any
 
 from slamcli.errors import FormatError, InputError
 from slamcli.formats.base import Closing
-from slamcli.formats.mcap.reader import DEFAULT_MAX_CHUNK_BYTES, McapLog, MessageLog
+from slamcli.formats.mcap.reader import (
+    DEFAULT_MAX_CHUNK_BYTES,
+    McapLog,
+    MessageLog,
+    count_stats,
+    message_window,
+)
 from slamcli.formats.mcap.records import ChannelInfo, ChannelStats, RawMessage
 from slamcli.formats.rosbag.health import BagHealth, TopicChannels
 from slamcli.formats.sniff import ROSBAG2_METADATA
@@ -195,9 +201,7 @@ class Ros2BagLog(Closing):
         """
         if not self._reader.is_open:
             raise ValueError(f"{self.path}: Ros2BagLog is closed")
-        if isinstance(topics, str):
-            topics = (topics,)
-        wanted = None if topics is None else frozenset(topics)
+        wanted = message_window(topics, start_ns, end_ns)[0]
         by_conn = self._topics.by_conn
         conns = [
             c
@@ -241,14 +245,7 @@ class Ros2BagLog(Closing):
         self.health.stopped = what
 
     def _counted_stats(self) -> dict[int, ChannelStats]:
-        counted = {cid: ChannelStats() for cid in self._topics.by_id}
-        for msg in self.messages():
-            st = counted[msg.channel.id]
-            if st.first_ns is None:
-                st.first_ns = msg.log_time_ns
-            st.count += 1
-            st.last_ns = msg.log_time_ns
-        return counted
+        return count_stats(self.messages(), lambda: self._topics.by_id)
 
     def _sqlite_stats(self) -> dict[int, ChannelStats] | None:
         """Per-channel statistics from the sqlite3 files' own tables (None where that is not
