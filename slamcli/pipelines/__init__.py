@@ -156,13 +156,14 @@ dump dense'. Exits with 3 when frames had to be skipped.""",
     "visual": PipelineSpec(
         target="slamcli.pipelines.visual:VisualSlam",
         help="""Feature-based visual SLAM (ORB-SLAM-like): a trajectory and a coloured point \
-map, from RGB-D or colour-only logs.
+map, from RGB-D, stereo or colour-only logs.
 
 ORB features spread over the image, tracking by a motion model and the local map, keyframes \
 with local bundle adjustment (pycolmap), loop closure by a bag-of-words vocabulary with \
 essential-graph optimisation (GTSAM) and global bundle adjustment; relocalisation and new maps \
-when tracking is lost. RGB-D when the input has depth, monocular otherwise (or --set \
-mode=mono: a map without metric scale, scored after Sim(3) alignment). Writes trajectory.tum, \
+when tracking is lost. Stereo for a stereo pair (KITTI or EuRoC folders, logs with left and \
+right image topics), RGB-D when the input has depth, monocular otherwise (or --set mode=mono: \
+a map without metric scale, scored after Sim(3) alignment). Writes trajectory.tum, \
 keyframes.tum, points.ply, graph.g2o, report.png and run.json (frames by tracking state, maps, \
 loop closures with their scores; ATE/RPE when the input has ground truth). Settings: 'slamcli \
 config dump visual'. Exits with 3 when frames had to be skipped, or when a --fail-if gate holds.""",

@@ -58,6 +58,52 @@ def match_ratio(desc_a: U8, desc_b: U8, ratio: float, max_distance: int = 256) -
     return _one_to_one(arr[:, 0].astype(np.int64), arr[:, 1].astype(np.int64), arr[:, 2])
 
 
+def match_ratio_grouped(
+    desc_a: U8,
+    group_a: NDArray[np.integer[Any]],
+    desc_b: U8,
+    group_b: NDArray[np.integer[Any]],
+    ratio: float,
+    max_distance: int = 256,
+) -> I64:
+    """:func:`match_ratio` with each descriptor of ``b`` compared only with those of ``a`` in
+    its own group (a vocabulary node, as ORB-SLAM's search for triangulation does): (K, 2)
+    pairs (a, b), at most one per a and per b. The nearest and second nearest are taken within
+    the group; a lone candidate passes the ratio test.
+
+    Every pair of one group is compared at once, so the cost follows the sum over groups of
+    ``len(a in group) * len(b in group)`` instead of ``len(a) * len(b)``.
+    """
+    ga = np.asarray(group_a, np.int64)
+    gb = np.asarray(group_b, np.int64)
+    if len(desc_a) == 0 or len(desc_b) == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    order = np.argsort(ga, kind="stable")
+    sorted_groups = ga[order]
+    lo = np.searchsorted(sorted_groups, gb, side="left")
+    count = np.searchsorted(sorted_groups, gb, side="right") - lo
+    b_idx = np.repeat(np.arange(len(gb)), count)
+    if b_idx.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    # Position of each candidate within its b's run: 0, 1, ... count-1.
+    starts = np.cumsum(count) - count
+    within = np.arange(b_idx.size) - np.repeat(starts, count)
+    a_idx = order[np.repeat(lo, count) + within]
+    dist = hamming(desc_a[a_idx], desc_b[b_idx])
+    rank = np.lexsort((a_idx, dist, b_idx))
+    b_s, a_s, d_s = b_idx[rank], a_idx[rank], dist[rank]
+    first = np.r_[True, b_s[1:] != b_s[:-1]]
+    best = np.flatnonzero(first)
+    has_second = best + 1 < b_s.size
+    has_second[has_second] = ~first[best[has_second] + 1]
+    second = np.where(has_second, d_s[np.minimum(best + 1, b_s.size - 1)], np.inf)
+    ok = (d_s[best] < ratio * second) & (d_s[best] <= max_distance)
+    best = best[ok]
+    if best.size == 0:
+        return np.zeros((0, 2), dtype=np.int64)
+    return _one_to_one(a_s[best], b_s[best], d_s[best].astype(np.float64))
+
+
 def _one_to_one(a: I64, b: I64, dist: NDArray[np.float64]) -> I64:
     """Keep, for each ``a`` index, only its closest pair (ties: lower b)."""
     order = np.lexsort((b, dist, a))

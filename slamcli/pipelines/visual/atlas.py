@@ -48,6 +48,8 @@ class Keyframe:
         colors: (N, 3) uint8 colour under each keypoint.
         point_ids: (N,) map point of each keypoint, -1 for none.
         bow: the bag-of-words vector (vocabulary dependent), or None.
+        nodes: (N,) vocabulary node of each keypoint at a coarse level (for grouped matching),
+            or None until needed.
         parent: the keyframe it hangs from in the spanning tree (None for a map's first).
         culled: removed as redundant; its pose then follows ``parent`` by ``from_parent``.
         from_parent: (4, 4) ``cam_from_parentcam`` kept when culled.
@@ -66,6 +68,7 @@ class Keyframe:
     colors: NDArray[np.uint8]
     point_ids: I64
     bow: Any = None
+    nodes: NDArray[np.int32] | None = None
     parent: int | None = None
     culled: bool = False
     from_parent: F64 | None = None

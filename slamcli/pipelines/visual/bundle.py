@@ -129,7 +129,7 @@ class BundleAdjuster:
             "fixed_frames": fixed.copy(),
             "max_iterations": iterations,
             "obs_depth": None if self.rig.mono else dep,
-            "baseline_m": self.config.depth_baseline_m,
+            "baseline_m": self.rig.baseline_m,
         }
         return BaJob(list(kfs), fixed.copy(), pids, of, op.tolist(), okp, args, kwargs)
 

@@ -14,18 +14,32 @@ class VisualConfig:
 
     mode: str = setting(
         "auto",
-        help="rgbd uses depth, mono colour only (a map without metric scale, scored after "
-        "Sim(3) alignment); auto picks rgbd when the input has depth",
-        choices=("auto", "rgbd", "mono"),
+        help="rgbd uses a depth image, stereo a rectified stereo pair, mono colour only (a map "
+        "without metric scale, scored after Sim(3) alignment); auto picks stereo for stereo "
+        "input, rgbd when the input has depth, mono otherwise",
+        choices=("auto", "rgbd", "stereo", "mono"),
     )
-    max_features: int = setting(1000, help="ORB features per frame", min=100, max=20000)
+    max_features: int = setting(
+        1000, help="ORB features per frame (RGB-D and monocular)", min=100, max=20000
+    )
+    stereo_max_features: int = setting(
+        2000,
+        help="ORB features per image of a stereo pair (ORB-SLAM's KITTI setting: stereo keeps "
+        "only the keypoints matched in the right image as near points)",
+        min=100,
+        max=20000,
+    )
     levels: int = setting(8, help="ORB pyramid levels", min=1, max=12)
     scale_factor: float = setting(1.2, help="ORB pyramid scale between levels", gt=1.0, max=2.0)
     fast_threshold: int = setting(
         12, help="FAST corner threshold; corners are ranked and spread afterwards", min=1, max=100
     )
     depth_min_m: float = setting(
-        0.1, help="depth readings nearer than this are ignored", unit="m", min=0.0
+        0.1,
+        help="depth readings nearer than this are ignored (stereo: the disparity searched "
+        "stops there)",
+        unit="m",
+        min=0.0,
     )
     depth_max_m: float = setting(
         4.0, help="depth readings further than this are ignored", unit="m", gt=0.0
@@ -37,6 +51,14 @@ class VisualConfig:
         unit="m",
         gt=0.0,
         max=1.0,
+    )
+    stereo_far_baselines: float = setting(
+        40.0,
+        help="stereo: keypoints further than this many baselines are far points (their depth "
+        "is too coarse to trust; they are triangulated from motion instead, as ORB-SLAM's "
+        "ThDepth)",
+        gt=1.0,
+        max=1000.0,
     )
     keyframe_track_ratio: float = setting(
         0.75,

@@ -1,9 +1,17 @@
 """Frames as the visual pipeline tracks them, and the camera rig they come from.
 
 :class:`Rig` holds what is fixed for a run: the camera (set by the first frame; keypoints, not
-images, are undistorted), whether depth is used (RGB-D) or not (monocular), the ORB settings
-and how a pose is refined against matched points. :class:`Frame` is one image ready to track:
-its ORB features, undistorted keypoints, the depth under each (RGB-D) and the colour.
+images, are undistorted), where depth comes from (an RGB-D depth image, a rectified stereo
+pair, or nowhere: monocular), the ORB settings and how a pose is refined against matched
+points. :class:`Frame` is one image ready to track: its ORB features, undistorted keypoints,
+the depth of each (under it in the depth image, or from its match in the right image) and the
+colour.
+
+A keypoint with depth is weighed as a stereo observation: its right-image column
+``u - fx * baseline / depth`` is a second residual (ORB-SLAM's RGB-D mode uses a virtual
+baseline; a stereo rig has a real one). Stereo keypoints further than ``stereo_far_baselines``
+baselines are far points: their depth is dropped, so they constrain rotation only until local
+mapping triangulates them from the motion between keyframes.
 """
 
 from __future__ import annotations
@@ -16,12 +24,29 @@ from numpy.typing import NDArray
 from slamcli.errors import InputError
 from slamcli.pipelines import Evaluation
 from slamcli.pipelines.visual.config import VisualConfig
-from slamcli.types import ImageFrame, PinholeCamera, RgbdFrame
+from slamcli.types import ImageFrame, PinholeCamera, RgbdFrame, StereoFrame, StereoRig
 from slamcli.vision.features import Features, OrbSettings, depth_at, extract_orb
 from slamcli.vision.pnp import PoseEstimate, refine_pose, refine_pose_depth
+from slamcli.vision.stereo import StereoMatches, StereoSettings, match_stereo
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
+
+AnyFrame = RgbdFrame | ImageFrame | StereoFrame
+
+
+@dataclass(frozen=True)
+class StereoFeatures:
+    """ORB features of a stereo pair's left image, and where each was found in the right."""
+
+    left: Features
+    matches: StereoMatches
+
+    def __len__(self) -> int:
+        return len(self.left)
+
+
+Extracted = Features | StereoFeatures
 
 
 @dataclass
@@ -100,19 +125,16 @@ def refine_poses(
 class Rig:
     """The camera the frames come from, set by the first frame, and what follows from it.
 
-    ``mono`` says whether depth is used; it is settled before the first frame (by the config's
-    mode, or by what the input holds: :meth:`VisualSlam.frame_kinds`).
+    ``mono`` says whether depth is used and ``stereo`` whether it comes from a stereo pair;
+    both are settled before the first frame (by the config's mode, or by what the input holds:
+    :meth:`VisualSlam.frame_kinds`).
     """
 
     def __init__(self, config: VisualConfig) -> None:
         self.config = config
         self.mono = config.mode == "mono"
-        self.orb = OrbSettings(
-            n_features=config.max_features,
-            levels=config.levels,
-            scale=config.scale_factor,
-            fast_threshold=config.fast_threshold,
-        )
+        self.stereo = config.mode == "stereo"
+        self._pair: StereoRig | None = None
         self._camera: PinholeCamera | None = None
         self._raw_camera: PinholeCamera | None = None
 
@@ -128,26 +150,76 @@ class Rig:
         ``se3``."""
         return "sim3" if self.mono else "se3"
 
-    def extract(self, frame: RgbdFrame | ImageFrame) -> Features:
-        """ORB features of ``frame``'s image (no state is changed: it may run on another
-        thread)."""
-        import cv2
+    @property
+    def orb(self) -> OrbSettings:
+        """How ORB features are found (``stereo_max_features`` per image of a stereo pair)."""
+        cfg = self.config
+        return OrbSettings(
+            n_features=cfg.stereo_max_features if self.stereo else cfg.max_features,
+            levels=cfg.levels,
+            scale=cfg.scale_factor,
+            fast_threshold=cfg.fast_threshold,
+        )
 
+    @property
+    def mode(self) -> str:
+        """``mono``, ``stereo`` or ``rgbd``: where the keypoints' depth comes from."""
+        return "mono" if self.mono else "stereo" if self.stereo else "rgbd"
+
+    @property
+    def baseline_m(self) -> float:
+        """The baseline a keypoint's depth is weighed with: the stereo pair's, or RGB-D's
+        virtual one (``depth_baseline_m``)."""
+        if self._pair is not None:
+            return self._pair.baseline_m
+        return self.config.depth_baseline_m
+
+    @property
+    def depth_max_m(self) -> float:
+        """The furthest depth a keypoint keeps: ``stereo_far_baselines`` baselines for a
+        stereo pair, ``depth_max_m`` for RGB-D."""
+        if self._pair is not None:
+            return self.config.stereo_far_baselines * self._pair.baseline_m
+        return self.config.depth_max_m
+
+    @property
+    def body_from_camera(self) -> F64:
+        """(4, 4) pose of the (left) camera on the body the source's ground truth refers to."""
+        if self._pair is not None:
+            return np.asarray(self._pair.body_from_left, np.float64)
+        return np.eye(4)
+
+    def stereo_settings(self) -> StereoSettings:
+        """How left keypoints are matched in the right image."""
+        return StereoSettings(min_depth_m=self.config.depth_min_m, scale=self.orb.scale)
+
+    def extract(self, frame: AnyFrame) -> Extracted:
+        """ORB features of ``frame``'s image; of a stereo pair, the left image's features and
+        their matches in the right (no state is changed: it may run on another thread)."""
+        if isinstance(frame, StereoFrame):
+            _check_sizes(frame)
+            orb = self.orb
+            left = extract_orb(_grey(frame.left), orb)
+            right = extract_orb(_grey(frame.right), orb)
+            matches = match_stereo(
+                left, right, frame.left, frame.right, frame.rig, self.stereo_settings()
+            )
+            return StereoFeatures(left, matches)
         rgb = frame.rgb if isinstance(frame, RgbdFrame) else frame.image
-        if rgb.ndim == 2:
-            gray = np.ascontiguousarray(rgb, dtype=np.uint8)
-        else:
-            colour = np.ascontiguousarray(rgb[..., :3], dtype=np.uint8)
-            gray = np.asarray(cv2.cvtColor(colour, cv2.COLOR_RGB2GRAY), dtype=np.uint8)
-        return extract_orb(gray, self.orb)
+        return extract_orb(_grey(rgb), self.orb)
 
-    def prepare(self, frame: RgbdFrame | ImageFrame, features: Features, index: int) -> Frame:
+    def prepare(self, frame: AnyFrame, extracted: Extracted, index: int) -> Frame:
         """``frame`` with its ``features``, ready to track as the ``index``-th frame.
 
         Raises:
             InputError: the frame has no camera, its images disagree with the camera or with
                 each other, or the camera differs from the first frame's.
         """
+        if isinstance(frame, StereoFrame):
+            assert isinstance(extracted, StereoFeatures)
+            return self._prepare_pair(frame, extracted, index)
+        assert isinstance(extracted, Features)
+        features = extracted
         rgb = frame.rgb if isinstance(frame, RgbdFrame) else frame.image
         cam = frame.camera
         if cam is None:
@@ -186,13 +258,6 @@ class Rig:
             z[(z < self.config.depth_min_m) | (z > self.config.depth_max_m)] = np.nan
         else:
             z = np.full(len(kp), np.nan)
-        u = np.clip(np.rint(kp_raw[:, 0]).astype(np.int64), 0, w - 1)
-        v = np.clip(np.rint(kp_raw[:, 1]).astype(np.int64), 0, h - 1)
-        colors = (
-            np.repeat(rgb[v, u][:, None], 3, axis=1)
-            if rgb.ndim == 2
-            else np.asarray(rgb[v, u][:, :3], dtype=np.uint8)
-        )
         return Frame(
             index=index,
             stamp_ns=frame.stamp_ns,
@@ -200,7 +265,44 @@ class Rig:
             features=features,
             keypoints=kp,
             depth=z,
-            colors=np.asarray(colors, dtype=np.uint8),
+            colors=_colours(rgb, kp_raw),
+            point_ids=np.full(len(kp), -1, np.int64),
+        )
+
+    def _prepare_pair(self, frame: StereoFrame, extracted: StereoFeatures, index: int) -> Frame:
+        """A rectified stereo pair as a frame: the left keypoints (already undistorted), each
+        with the depth of its right-image match, near ones only (see the module's text)."""
+        where = frame.name or str(frame.stamp_ns)
+        _check_sizes(frame)
+        cam = frame.rig.camera
+        h, w = frame.left.shape[:2]
+        if (cam.height, cam.width) != (h, w):
+            raise InputError(
+                f"stereo pair {where}: the images are {w}x{h} but the rectified camera is "
+                f"{cam.width}x{cam.height}",
+                hint="give the calibration that matches the images",
+            )
+        if self._pair is None:
+            self._pair = frame.rig
+            self._raw_camera = self._camera = cam
+        elif frame.rig != self._pair:
+            raise InputError(
+                f"stereo pair {where}: the stereo calibration changed mid-sequence",
+                hint="the visual pipeline needs one fixed stereo rig",
+            )
+        features = extracted.left
+        z = np.array(extracted.matches.depth_m, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            z[~(z <= self.depth_max_m)] = np.nan
+        kp = features.keypoints.astype(np.float64)
+        return Frame(
+            index=index,
+            stamp_ns=frame.stamp_ns,
+            name=frame.name,
+            features=features,
+            keypoints=kp,
+            depth=z,
+            colors=_colours(frame.left, kp),
             point_ids=np.full(len(kp), -1, np.int64),
         )
 
@@ -214,7 +316,7 @@ class Rig:
         return _refine_pose(
             self.camera,
             self.mono,
-            self.config.depth_baseline_m,
+            self.baseline_m,
             pose,
             kp,
             world,
@@ -225,4 +327,35 @@ class Rig:
 
     def refine_jobs(self) -> tuple[PinholeCamera, bool, float]:
         """The leading arguments of :func:`refine_poses` for this rig."""
-        return (self.camera, self.mono, self.config.depth_baseline_m)
+        return (self.camera, self.mono, self.baseline_m)
+
+
+def _check_sizes(frame: StereoFrame) -> None:
+    """Raise InputError, naming the pair, when its two images differ in size."""
+    if frame.left.shape[:2] != frame.right.shape[:2]:
+        raise InputError(
+            f"stereo pair {frame.name or frame.stamp_ns}: left image "
+            f"{frame.left.shape[1]}x{frame.left.shape[0]} but right "
+            f"{frame.right.shape[1]}x{frame.right.shape[0]}",
+            hint="a rectified pair has two images of one size; check the topics or folders",
+        )
+
+
+def _grey(image: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """``image`` as contiguous uint8 grey (RGB is converted)."""
+    import cv2
+
+    if image.ndim == 2:
+        return np.ascontiguousarray(image, dtype=np.uint8)
+    colour = np.ascontiguousarray(image[..., :3], dtype=np.uint8)
+    return np.asarray(cv2.cvtColor(colour, cv2.COLOR_RGB2GRAY), dtype=np.uint8)
+
+
+def _colours(image: NDArray[np.uint8], kp: NDArray[np.floating]) -> NDArray[np.uint8]:
+    """(N, 3) uint8 colour of ``image`` under each keypoint (grey repeated thrice)."""
+    h, w = image.shape[:2]
+    u = np.clip(np.rint(kp[:, 0]).astype(np.int64), 0, w - 1)
+    v = np.clip(np.rint(kp[:, 1]).astype(np.int64), 0, h - 1)
+    if image.ndim == 2:
+        return np.repeat(image[v, u][:, None], 3, axis=1).astype(np.uint8)
+    return np.asarray(image[v, u][:, :3], dtype=np.uint8)

@@ -19,7 +19,7 @@ from slamcli.pipelines.visual.bundle import BundleAdjuster
 from slamcli.pipelines.visual.frames import Frame
 from slamcli.pipelines.visual.parts import Part, Shared
 from slamcli.pipelines.visual.search import in_view, project_match
-from slamcli.vision.matching import TH_LOW, match_ratio
+from slamcli.vision.matching import TH_LOW, match_ratio, match_ratio_grouped
 from slamcli.vision.two_view import triangulate_checked
 
 I64 = NDArray[np.int64]
@@ -61,7 +61,8 @@ class LocalMapping(Part):
         self.map.update_geometry(kf.point_ids[kf.point_ids >= 0])
         if not self.rig.mono:
             self._points_from_depth(kf)
-        else:
+        if self.rig.mono or self.rig.stereo:
+            # Stereo far points have no depth: they are triangulated from the motion.
             self._triangulate(kf)
         # The previous keyframe's adjustment has had this keyframe's new points to finish in.
         if self.ba.settle(within="mapping"):
@@ -142,7 +143,7 @@ class LocalMapping(Part):
         sig = self.map.sigma[kf.octaves[pairs[:, 1]]]
         z_kp = kf.depth[pairs[:, 1]]
         stereo = np.isfinite(z_kp)
-        bf = cam.fx * self.config.depth_baseline_m
+        bf = cam.fx * self.rig.baseline_m
         disp = np.where(stereo, bf / p[:, 2] - bf / np.where(stereo, z_kp, 1.0), 0.0)
         pairs = pairs[err2 + disp**2 <= np.where(stereo, 7.815, _CHI2_2D) * sig**2]
         n = 0
@@ -295,7 +296,9 @@ class LocalMapping(Part):
         covisible keyframes, checked against the epipolar line, triangulated, and kept when
         the rays have parallax, the point is in front of both cameras and reprojects well."""
         cam = self.rig.camera
-        neighbours = [self.map.keyframes[k] for k, _ in self.map.covisible(kf)[:20]]
+        # ORB-SLAM searches 20 neighbours of a monocular keyframe, 10 of a stereo one.
+        nn = 20 if self.rig.mono else 10
+        neighbours = [self.map.keyframes[k] for k, _ in self.map.covisible(kf)[:nn]]
         c1 = kf.center
         made = 0
         for nb in neighbours:
@@ -306,12 +309,7 @@ class LocalMapping(Part):
             nb_depths = self._median_depth(nb)
             if not np.isfinite(nb_depths) or np.linalg.norm(nb.center - c1) / nb_depths < 0.01:
                 continue
-            pairs = match_ratio(
-                nb.descriptors[free_nb],
-                kf.descriptors[free_kf],
-                0.6 if self.rig.mono else 0.8,
-                TH_LOW,
-            )
+            pairs = self._pair_free(kf, free_kf, nb, free_nb)
             if len(pairs) == 0:
                 continue
             i_nb, i_kf = free_nb[pairs[:, 0]], free_kf[pairs[:, 1]]
@@ -333,6 +331,28 @@ class LocalMapping(Part):
             self.map.update_geometry(pids)
             made += int(pids.size)
         self.stats.counts["points_triangulated"] += made
+
+    def _pair_free(self, kf: Keyframe, free_kf: I64, nb: Keyframe, free_nb: I64) -> I64:
+        """(K, 2) pairs (row of ``free_nb``, row of ``free_kf``) of keypoints without points
+        that look alike: brute force for a monocular map, within the vocabulary's third-level
+        nodes for a stereo one (whose keyframes hold more keypoints)."""
+        if self.rig.mono:
+            return match_ratio(nb.descriptors[free_nb], kf.descriptors[free_kf], 0.6, TH_LOW)
+        return match_ratio_grouped(
+            nb.descriptors[free_nb],
+            self._nodes(nb)[free_nb],
+            kf.descriptors[free_kf],
+            self._nodes(kf)[free_kf],
+            0.8,
+            TH_LOW,
+        )
+
+    def _nodes(self, kf: Keyframe) -> NDArray[np.int32]:
+        """Each keypoint's vocabulary node at depth 3 (kept on the keyframe)."""
+        if kf.nodes is None:
+            vocabulary = self.places.db.vocabulary
+            kf.nodes = vocabulary.nodes(kf.descriptors, min(3, vocabulary.levels))
+        return kf.nodes
 
     def _median_depth(self, kf: Keyframe) -> float:
         pids = kf.point_ids[kf.point_ids >= 0]

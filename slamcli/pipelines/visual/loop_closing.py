@@ -470,14 +470,18 @@ def _sim_matrix(pose: F64, scale: float) -> F64:
     return m
 
 
-def essential_graph(smap: SparseMap, kfs: list[Keyframe]) -> list[Any]:
+def essential_graph(
+    smap: SparseMap, kfs: list[Keyframe], body_from_camera: F64 | None = None
+) -> list[Any]:
     """The essential graph of keyframes ``kfs`` (edges between their indices): spanning tree,
-    strong covisibility (100 shared points) and loop edges, measured by their poses."""
+    strong covisibility (100 shared points) and loop edges, measured by their poses (of the
+    body, when the camera sits at ``body_from_camera`` on it)."""
     from slamcli.graphs.pose_graph import Edge
 
+    b = np.eye(4) if body_from_camera is None else body_from_camera
     index = {k.id: i for i, k in enumerate(kfs)}
     edges: list[Edge] = []
-    for a, b, kind in smap.essential_links(kfs):
-        rel = smap.keyframes[a].cam_from_world @ inverse(smap.keyframes[b].cam_from_world)
-        edges.append(Edge(index[a], index[b], rel, kind=kind))
+    for a, c, kind in smap.essential_links(kfs):
+        rel = smap.keyframes[a].cam_from_world @ inverse(smap.keyframes[c].cam_from_world)
+        edges.append(Edge(index[a], index[c], b @ rel @ inverse(b), kind=kind))
     return edges

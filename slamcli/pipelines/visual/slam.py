@@ -1,13 +1,16 @@
-"""Feature-based visual SLAM (ORB-SLAM-like), RGB-D or monocular, offline and deterministic.
+"""Feature-based visual SLAM (ORB-SLAM-like), RGB-D, stereo or monocular, offline and
+deterministic.
 
 Per frame (:meth:`VisualSlam.process`), in the order of ORB-SLAM's threads of work:
 
 - **Features** (:mod:`.frames`): ORB spread over the image and 8 pyramid levels; keypoints,
-  not images, are undistorted. With ``threads = 2`` the next frame's features are extracted on
-  the second core while the current one is tracked (the extraction is a pure function of the
-  image, so the order of results never changes).
+  not images, are undistorted. A stereo pair's left keypoints are matched along the rows of
+  the right image, which gives near keypoints their depth. With ``threads = 2`` the next
+  frame's features are extracted on the second core while the current one is tracked (the
+  extraction is a pure function of the image, so the order of results never changes).
 - **Tracking** (:mod:`.tracking`): motion model, reference keyframe or relocalisation, then the
-  local map; a monocular map is first initialised from two views (:mod:`.initializer`).
+  local map; a monocular map is first initialised from two views (:mod:`.initializer`), an
+  RGB-D or stereo map from the first frame's depth, at metric scale.
 - **Local mapping** (:mod:`.local_mapping`, :mod:`.bundle`) on each keyframe: new points,
   fusion, culling, local bundle adjustment.
 - **Loop closing** (:mod:`.loop_closing`, :mod:`.places`): place recognition, verified loops
@@ -18,9 +21,11 @@ Per frame (:meth:`VisualSlam.process`), in the order of ORB-SLAM's threads of wo
 
 :meth:`VisualSlam.finish` runs a last global bundle adjustment and re-estimates every frame's
 pose against the final map (an offline tool can afford it), then returns the trajectory of
-every frame in the main map (the one of the first keyframe, with all maps merged into it), the
-keyframes, the coloured points, the pose graph, and counts of frames by tracking state, maps,
-merges and loop closures with their scores and reasons.
+every frame in the main map (the one of the first keyframe, with all maps merged into it;
+poses of the body the source's ground truth refers to, which for a stereo rig may differ from
+the left camera, as EuRoC's IMU body does), the keyframes, the coloured points, the pose
+graph, and counts of frames by tracking state, maps, merges and loop closures with their
+scores and reasons.
 """
 
 from __future__ import annotations
@@ -38,15 +43,14 @@ from slamcli.pipelines.timing import Stats
 from slamcli.pipelines.visual.atlas import Atlas
 from slamcli.pipelines.visual.bundle import BundleAdjuster
 from slamcli.pipelines.visual.config import VisualConfig
-from slamcli.pipelines.visual.frames import Frame, Rig, refine_poses
+from slamcli.pipelines.visual.frames import AnyFrame, Extracted, Frame, Rig, refine_poses
 from slamcli.pipelines.visual.initializer import MonoInitializer
 from slamcli.pipelines.visual.local_mapping import LocalMapping
 from slamcli.pipelines.visual.loop_closing import LoopClosing, essential_graph
 from slamcli.pipelines.visual.parts import Shared
 from slamcli.pipelines.visual.places import Places
 from slamcli.pipelines.visual.tracking import Tracking
-from slamcli.types import ImageFrame, RgbdFrame, SlamResult, Trajectory
-from slamcli.vision.features import Features
+from slamcli.types import SlamResult, Trajectory
 from slamcli.worker import SideProcess
 
 F64 = NDArray[np.float64]
@@ -55,8 +59,8 @@ _STATES = ("tracked", "relocalised", "lost", "initialising", "new_map")
 
 
 class VisualSlam(PipelineBase):
-    """Pipeline ``visual``: consumes ``rgbd`` (or ``image``, monocular) frames; produces
-    poses, keyframes, coloured points and a pose graph."""
+    """Pipeline ``visual``: consumes ``rgbd``, ``stereo`` or ``image`` (monocular) frames;
+    produces poses, keyframes, coloured points and a pose graph."""
 
     name = "visual"
     consumes: tuple[str, ...] = ("rgbd",)
@@ -96,26 +100,36 @@ class VisualSlam(PipelineBase):
         return {"ransac": self.config.seed, "opencv": self.config.seed}
 
     def frame_kinds(self, info: SourceInfo) -> tuple[str, ...]:
-        """The frames to read from a source described by ``info``: RGB-D when it has depth and
-        the mode allows, colour images otherwise.
+        """The frames to read from a source described by ``info``: stereo pairs from a stereo
+        source, RGB-D when it has depth, colour images otherwise (or as the mode says).
 
         Raises:
-            ConfigError: ``mode=rgbd`` for an input without depth.
+            ConfigError: a mode the input cannot give (``rgbd`` without depth, ``stereo``
+                without a stereo pair).
         """
         # A depth stream (TUM) or a depth topic paired with the colour one (MCAP).
         has_depth = any(s.kind == "depth" and s.count > 0 for s in info.streams) or bool(
             info.details.get("depth_topic") and info.frames > 0
         )
+        has_pairs = any(s.kind == "stereo" and s.count > 0 for s in info.streams)
         mode = self.config.mode
+        if mode == "auto":
+            mode = "stereo" if has_pairs else "rgbd" if has_depth else "mono"
         if mode == "rgbd" and not has_depth:
             raise ConfigError(
                 f"visual.mode=rgbd, but {info.path} has no depth stream",
                 hint="use --set mode=mono (or mode=auto) for colour-only input",
             )
-        self.rig.mono = mode == "mono" or (mode == "auto" and not has_depth)
-        return ("image",) if self.rig.mono else ("rgbd",)
+        if mode == "stereo" and not has_pairs:
+            raise ConfigError(
+                f"visual.mode=stereo, but {info.path} has no stereo pairs",
+                hint="give a KITTI or EuRoC folder, or a log with left and right image topics",
+            )
+        self.rig.mono = mode == "mono"
+        self.rig.stereo = mode == "stereo"
+        return {"mono": ("image",), "stereo": ("stereo",), "rgbd": ("rgbd",)}[mode]
 
-    def process(self, frame: RgbdFrame | ImageFrame) -> None:
+    def process(self, frame: AnyFrame) -> None:
         """Queue a frame; with two threads its features are extracted while the previous
         frame is tracked."""
         if self.config.threads == 2:
@@ -148,12 +162,12 @@ class VisualSlam(PipelineBase):
 
     # -- as another pipeline's front end ------------------------------------------------------
 
-    def extract(self, frame: RgbdFrame | ImageFrame) -> Features:
+    def extract(self, frame: AnyFrame) -> Extracted:
         """ORB features of ``frame`` for :meth:`track` (no state is changed: it may run on
         another thread)."""
         return self.rig.extract(frame)
 
-    def track(self, frame: RgbdFrame | ImageFrame, features: Features) -> tuple[F64, int] | None:
+    def track(self, frame: AnyFrame, features: Extracted) -> tuple[F64, int] | None:
         """Track ``frame`` now, without the queue of :meth:`process`: its world_from_camera
         pose as tracked (in the frame of its map) and that map's id, or None while the map is
         initialising or the frame is lost. :meth:`finish` still gives the final trajectory."""
@@ -175,7 +189,7 @@ class VisualSlam(PipelineBase):
 
     # -- frames ------------------------------------------------------------------------------
 
-    def _track_frame(self, frame: RgbdFrame | ImageFrame, features: Features) -> None:
+    def _track_frame(self, frame: AnyFrame, features: Extracted) -> None:
         start = time.perf_counter()
         cur = self.rig.prepare(frame, features, self._frames)
         self._frames += 1
@@ -259,6 +273,13 @@ class VisualSlam(PipelineBase):
                 f"{self.config.mono_min_parallax_deg} deg of parallax: the camera must translate)",
                 hint="give a sequence that moves sideways, or use RGB-D input",
             )
+        if self.rig.stereo:
+            raise PipelineError(
+                f"no map could be made from {self._frames} stereo pairs: none had 100 keypoints "
+                f"matched in the right image nearer than {self.rig.depth_max_m:.1f} m",
+                hint="check that the pairs are rectified and the baseline is right "
+                "('slamcli info'), or raise visual.stereo_far_baselines",
+            )
         raise PipelineError(
             f"no map could be made from {self._frames} frames: none had 100 keypoints with depth "
             f"between {self.config.depth_min_m} and {self.config.depth_max_m} m",
@@ -306,9 +327,12 @@ class VisualSlam(PipelineBase):
             for i, new in zip(refined, better, strict=True):
                 if new is not None:
                     poses[i] = new
-        return Trajectory(
-            np.array(stamps, np.int64), np.stack([inverse(p) for p in poses]).reshape(-1, 4, 4)
-        )
+        return Trajectory(np.array(stamps, np.int64), self._bodies(poses))
+
+    def _bodies(self, cam_from_world: list[F64]) -> F64:
+        """(N, 4, 4) world_from_body of cameras at ``cam_from_world``."""
+        camera_from_body = inverse(self.rig.body_from_camera)
+        return np.stack([inverse(p) @ camera_from_body for p in cam_from_world]).reshape(-1, 4, 4)
 
     def _result(self, main: int | None, trajectory: Trajectory) -> SlamResult:
         """The result of the run: ``trajectory``, the keyframes, points and essential graph of
@@ -317,7 +341,7 @@ class VisualSlam(PipelineBase):
         kfs = smap.live(main)
         keyframes = Trajectory(
             np.array([k.stamp_ns for k in kfs], np.int64),
-            np.stack([inverse(k.cam_from_world) for k in kfs]).reshape(-1, 4, 4),
+            self._bodies([k.cam_from_world for k in kfs]),
         )
         alive = np.flatnonzero(smap.alive[: smap.n] & (smap.map_id[: smap.n] == main))
         counts = dict(self.stats.counts)
@@ -333,11 +357,14 @@ class VisualSlam(PipelineBase):
         return SlamResult(
             trajectory=trajectory,
             keyframes=keyframes,
-            pose_graph=(keyframes.world_from_body, essential_graph(smap, kfs)),
+            pose_graph=(
+                keyframes.world_from_body,
+                essential_graph(smap, kfs, self.rig.body_from_camera),
+            ),
             points=smap.pos[alive].copy(),
             point_colors=smap.color[alive].copy(),
             metrics={
-                "mode": "mono" if self.rig.mono else "rgbd",
+                "mode": self.rig.mode,
                 "initialisation": self.initializer.info,
                 "ms_per_frame": stages,
                 "maps": [m.to_dict() for m in self.atlas.maps],

@@ -356,7 +356,7 @@ class Tracking(Part):
         tracked = cur.inliers
         need_close = False
         if not self.rig.mono:
-            close = np.isfinite(cur.depth) & (cur.depth < 0.75 * self.config.depth_max_m)
+            close = np.isfinite(cur.depth) & (cur.depth < 0.75 * self.rig.depth_max_m)
             tracked_close = int(np.count_nonzero(close & (cur.point_ids >= 0)))
             untracked_close = int(np.count_nonzero(close & (cur.point_ids < 0)))
             need_close = tracked_close < 100 and untracked_close > 70

@@ -1,0 +1,142 @@
+"""Stereo visual SLAM (``run visual`` on a stereo source): the KITTI excerpt against its ground
+truth, the static EuRoC excerpt against the body-frame ground truth, determinism, the mode
+choice, and the grouped descriptor matching it triangulates far points with.
+
+Each real-data run is made once per session (the fixtures below) and read by several tests.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import shared_path
+
+from slamcli.errors import ConfigError, InputError
+from slamcli.evaluation import align
+from slamcli.evaluation import ate as position_errors
+from slamcli.formats import open_source
+from slamcli.formats.kitti import KittiSource
+from slamcli.formats.trajectory import read_trajectory
+from slamcli.pipelines.visual import VisualConfig, VisualSlam
+from slamcli.run import RunOutcome, run_pipeline
+from slamcli.vision.matching import match_ratio, match_ratio_grouped
+
+KITTI = ("stereo", "kitti_excerpt_1")
+EUROC = ("stereo", "euroc_V1_01_micro")
+
+
+@pytest.fixture(scope="session")
+def kitti_run(tmp_path_factory: pytest.TempPathFactory) -> RunOutcome:
+    out = tmp_path_factory.mktemp("stereo") / "kitti"
+    return run_pipeline(shared_path(*KITTI), "visual", out)
+
+
+@pytest.fixture(scope="session")
+def euroc_run(tmp_path_factory: pytest.TempPathFactory) -> RunOutcome:
+    out = tmp_path_factory.mktemp("stereo") / "euroc"
+    gt = shared_path(*EUROC) / "groundtruth_body.txt"
+    return run_pipeline(shared_path(*EUROC), "visual", out, source_options={"groundtruth": str(gt)})
+
+
+def _positions(outcome: RunOutcome) -> np.ndarray:
+    return outcome.result.trajectory.world_from_body[:, :3, 3]
+
+
+def test_kitti_every_pair_is_posed_at_metric_scale(kitti_run: RunOutcome) -> None:
+    result = kitti_run.result
+    assert result.metrics["mode"] == "stereo"
+    assert len(result.trajectory) == 51
+    assert result.counts["frames_lost"] == 0
+    assert kitti_run.evaluation == "se3"
+    # The scale comes from the stereo baseline: the path is the ground truth's within 1 %.
+    gt = KittiSource(shared_path(*KITTI)).groundtruth()
+    assert gt is not None
+    est_len = np.linalg.norm(np.diff(_positions(kitti_run), axis=0), axis=1).sum()
+    assert abs(est_len / gt.path_length() - 1.0) < 0.01
+
+
+def test_kitti_accuracy_against_ground_truth(kitti_run: RunOutcome) -> None:
+    rmse = kitti_run.metrics["evaluation"]["ate"]["rmse"]
+    # 60 m of driving; ORB-SLAM3 gives 0.047-0.066 m on these frames.
+    assert rmse < 0.15
+    gt = KittiSource(shared_path(*KITTI)).groundtruth()
+    assert gt is not None
+    est = _positions(kitti_run)
+    ref = gt.world_from_body[:, :3, 3]
+    # Endpoint drift: the end's offset from the start, compared in each one's own first frame.
+    r0 = kitti_run.result.trajectory.world_from_body[0, :3, :3]
+    g0 = gt.world_from_body[0, :3, :3]
+    drift = np.linalg.norm(r0.T @ (est[-1] - est[0]) - g0.T @ (ref[-1] - ref[0]))
+    assert drift / gt.path_length() < 0.015
+    # Shape and scale: after a similarity alignment the error is a few centimetres.
+    traj = kitti_run.result.trajectory.world_from_body
+    aligned, _, _, scale = align(gt.world_from_body, traj, "sim3")
+    assert float(np.sqrt(np.mean(position_errors(gt.world_from_body, aligned) ** 2))) < 0.04
+    assert abs(scale - 1.0) < 0.01
+
+
+def test_euroc_static_start_stays_within_5mm(euroc_run: RunOutcome) -> None:
+    result = euroc_run.result
+    assert result.metrics["mode"] == "stereo"
+    assert len(result.trajectory) == 95
+    ev = euroc_run.metrics["evaluation"]
+    assert ev["ate"]["rmse"] < 0.005
+    # The drone sits on the floor: the body moves less than 5 mm over the excerpt.
+    pos = _positions(euroc_run)
+    assert np.linalg.norm(pos[-1] - pos[0]) < 0.005
+    assert np.max(np.linalg.norm(pos - pos[0], axis=1)) < 0.005
+
+
+def test_stereo_runs_are_deterministic(euroc_run: RunOutcome, tmp_path: Path) -> None:
+    gt = shared_path(*EUROC) / "groundtruth_body.txt"
+    again = run_pipeline(
+        shared_path(*EUROC),
+        "visual",
+        tmp_path / "again",
+        config=VisualConfig(threads=1),
+        source_options={"groundtruth": str(gt)},
+    )
+    first = (euroc_run.run_dir / "trajectory.tum").read_bytes()
+    assert (again.run_dir / "trajectory.tum").read_bytes() == first
+    assert len(read_trajectory(again.run_dir / "trajectory.tum")) == 95
+
+
+def test_auto_mode_picks_stereo_and_refuses_impossible_modes() -> None:
+    info = open_source(shared_path(*KITTI)).info()
+    slam = VisualSlam(VisualConfig())
+    assert slam.frame_kinds(info) == ("stereo",)
+    assert slam.evaluation == "se3"
+    with pytest.raises(ConfigError, match="no depth stream"):
+        VisualSlam(VisualConfig(mode="rgbd")).frame_kinds(info)
+    tum = open_source(shared_path("tum", "rgbd_dataset_freiburg1_rpy_excerpt")).info()
+    with pytest.raises(ConfigError, match="no stereo pairs"):
+        VisualSlam(VisualConfig(mode="stereo")).frame_kinds(tum)
+
+
+def test_pairs_of_different_sizes_are_refused() -> None:
+    source = open_source(shared_path(*KITTI))
+    frame = next(iter(source.frames(kinds=("stereo",))))
+    cropped = type(frame)(frame.stamp_ns, frame.left, frame.right[:, :-8], frame.rig, name="pair 0")
+    slam = VisualSlam(VisualConfig(threads=1))
+    slam.frame_kinds(source.info())
+    with pytest.raises(InputError, match="pair 0"):
+        slam.process(cropped)
+    slam.close()
+
+
+def test_grouped_matching_is_brute_force_within_groups() -> None:
+    rng = np.random.default_rng(3)
+    a = rng.integers(0, 256, (400, 32), dtype=np.uint8)
+    b = a[rng.permutation(400)[:250]].copy()
+    b[:, :2] ^= rng.integers(0, 16, (250, 2), dtype=np.uint8)
+    # One group for all: the same pairs as the brute-force matcher.
+    one = match_ratio_grouped(a, np.zeros(400, int), b, np.zeros(250, int), 0.8, 50)
+    assert np.array_equal(one, match_ratio(a, b, 0.8, 50))
+    # Groups: every pair stays within its group, and each a and b is used once at most.
+    ga, gb = rng.integers(0, 5, 400), rng.integers(0, 5, 250)
+    pairs = match_ratio_grouped(a, ga, b, gb, 0.8, 50)
+    assert len(pairs) > 0
+    assert np.all(ga[pairs[:, 0]] == gb[pairs[:, 1]])
+    assert len(set(pairs[:, 0].tolist())) == len(pairs) == len(set(pairs[:, 1].tolist()))
