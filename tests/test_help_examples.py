@@ -34,6 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 ORDER = [
     "demo",
     "synth rgbd",
+    "synth stereo",
     "synth landmarks",
     "synth lidar",
     "vocab train",

@@ -461,6 +461,15 @@ def camera_path(frames: int, fps: float = FPS) -> Trajectory:
     return Trajectory(stamps_ns, make_pose(_path_rotation(shape, t_s), pos))
 
 
+def path_motion(frames: int, t_s: F64, fps: float = FPS) -> tuple[F64, F64]:
+    """The loop of a ``frames``-frame sequence at ``fps`` at any times ``t_s`` (N,) in seconds
+    after its first frame: world_from_camera poses (N, 4, 4) and accelerations (N, 3) m/s^2 of
+    the camera centre in the world."""
+    shape = _PathShape.for_duration(frames / fps)
+    pos, acc = _path_position(shape, t_s)
+    return make_pose(_path_rotation(shape, t_s), pos), acc
+
+
 def colour_stamps_ns(frames: int, fps: float = FPS) -> NDArray[np.int64]:
     """(frames,) int64 colour stamps, rounded to whole microseconds so 6 decimals are exact."""
     us = np.rint(np.arange(frames) * (1e6 / fps)).astype(np.int64)
@@ -538,6 +547,15 @@ class RgbdWorld:
         depth[~((depth >= MIN_RANGE_M) & (depth <= MAX_RANGE_M))] = 0.0
         rgb = np.clip(np.rint(colour), 0, 255).astype(np.uint8)
         return rgb, depth.astype(np.float32)
+
+    def render_colour(self, world_from_cam: F64) -> F32:
+        """Noise-free colour (H, W, 3) float32 RGB of one view, not yet rounded or clipped to
+        [0, 255]: the mean of the 2x2 sub-pixel rays :meth:`render` shades, without its depth
+        ray."""
+        rays = self._directions(world_from_cam, _SUPERSAMPLE_OFFSETS)
+        t, sid = self._cast(world_from_cam, rays)
+        origin = world_from_cam[:3, 3].astype(np.float32)
+        return self._shade(origin, rays, t, sid).mean(axis=0)
 
     def _directions(self, world_from_cam: F64, offsets: tuple[tuple[float, float], ...]) -> F32:
         """World ray directions (K, H, W, 3) with unit z in the camera frame, per pixel offset."""
