@@ -39,6 +39,8 @@ class SourceOptions:
     gt_frame: str | None = None
     landmark_topic: str | None = None
     scan_topic: str | None = None
+    left_topic: str | None = None
+    right_topic: str | None = None
     odometry: str | None = None
     groundtruth: str | None = None
     max_range: float | None = None

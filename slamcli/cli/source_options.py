@@ -182,6 +182,27 @@ LandmarkTopic = Annotated[
     str | None, _topic("--landmark-topic", "Landmark observation topic (range-bearing)")
 ]
 ScanTopic = Annotated[str | None, _topic("--scan-topic", "Laser scan topic (LaserScan)")]
+LeftTopic = Annotated[
+    str | None,
+    typer.Option(
+        "--left-topic",
+        help="Left camera's image topic of a stereo pair (MCAP logs, bags). Default: the one "
+        "pair of image topics named like left/right, cam0/cam1 or infra1/infra2; with one of "
+        "the two options, the topic named like it; with none or several, the command lists "
+        "the candidates.",
+        show_default=False,
+        rich_help_panel=TOPICS,
+    ),
+]
+RightTopic = Annotated[
+    str | None,
+    typer.Option(
+        "--right-topic",
+        help="Right camera's image topic of a stereo pair (MCAP logs, bags); see --left-topic.",
+        show_default=False,
+        rich_help_panel=TOPICS,
+    ),
+]
 GtFrame = Annotated[
     str | None,
     typer.Option(
@@ -216,6 +237,8 @@ _OPTIONS: dict[str, Any] = {
     "gt_frame": GtFrame,
     "landmark_topic": LandmarkTopic,
     "scan_topic": ScanTopic,
+    "left_topic": LeftTopic,
+    "right_topic": RightTopic,
     "odometry": Odometry,
     "groundtruth": Groundtruth,
     "max_range": MaxRange,

@@ -14,6 +14,11 @@ equidistant model) and builds the remap tables once. OpenCV takes the pose of th
 relative to the first as ``x_1 = R x_0 + T``, i.e. ``cam1_from_cam0 = inv(T_BS1) @ T_BS0``;
 its ``R1`` rotates the raw left camera onto the rectified one (``rect_from_cam0``), so the
 rectified left camera sits on the body at ``T_BS0 @ inv(R1)``.
+
+The same rectification serves cameras described otherwise (a log's ``CameraInfo`` messages):
+:func:`rectify_raw_pair` takes a :class:`RawStereoPair` and the pose between the two cameras;
+:func:`rectify_with_projections` builds the tables of a rectification already computed (ROS's
+stereo calibration stores each camera's ``R`` and ``P``).
 """
 
 from __future__ import annotations
@@ -128,6 +133,8 @@ class StereoRectification:
             rectified pixel of the left and the right image.
         left_from_raw: (3, 3) float64 rotation ``R1`` from the raw left camera to the rectified
             one; ``right_from_raw`` is ``R2`` for the right camera.
+        left_projection, right_projection: (3, 4) float64 rectified projections ``P1`` and
+            ``P2`` as OpenCV gives them (``P2[0, 3] = -fx * baseline``), for a ``CameraInfo``.
     """
 
     rig: StereoRig
@@ -135,6 +142,8 @@ class StereoRectification:
     right_map: tuple[F32, F32]
     left_from_raw: F64
     right_from_raw: F64
+    left_projection: F64
+    right_projection: F64
 
     def remap(
         self, left: NDArray[np.uint8], right: NDArray[np.uint8]
@@ -293,6 +302,28 @@ def read_imu_sensor(path: str | Path) -> ImuSensor:
     )
 
 
+@dataclass(frozen=True)
+class RawStereoPair:
+    """Two raw cameras to be rectified into one :class:`StereoRectification`.
+
+    Attributes:
+        cameras: the left and the right raw camera (size and ``K``; both of one size).
+        coefficients: each camera's distortion coefficients as OpenCV takes them for ``model``
+            (k1 k2 p1 p2 [k3 ...] for :data:`RADTAN`, k1 k2 k3 k4 for :data:`EQUIDISTANT`).
+        model: :data:`RADTAN` or :data:`EQUIDISTANT`.
+        body_from_left: (4, 4) float64 pose of the raw left camera on the body.
+        where: names the pair in messages (files, topics).
+        hint: what to check when the right camera is not to the right of the left one.
+    """
+
+    cameras: tuple[PinholeCamera, PinholeCamera]
+    coefficients: tuple[tuple[float, ...], tuple[float, ...]]
+    model: str
+    body_from_left: F64
+    where: str
+    hint: str = "a stereo pair has cam0 on the left and cam1 on its right"
+
+
 def rectify_stereo(left: CameraSensor, right: CameraSensor) -> StereoRectification:
     """Rectify a horizontal stereo pair (see the module docstring) and build its remap tables.
 
@@ -300,8 +331,6 @@ def rectify_stereo(left: CameraSensor, right: CameraSensor) -> StereoRectificati
         InputError: the cameras differ in size or distortion model, the right camera is not
             to the right of the left one, or the pair is vertical.
     """
-    import cv2
-
     a, b = left.camera, right.camera
     if (a.width, a.height) != (b.width, b.height) or left.model != right.model:
         raise InputError(
@@ -309,21 +338,38 @@ def rectify_stereo(left: CameraSensor, right: CameraSensor) -> StereoRectificati
             f"distortion model, found {a.width}x{a.height} {left.model} and "
             f"{b.width}x{b.height} {right.model}"
         )
-    cam1_from_cam0 = inverse(right.body_from_sensor) @ left.body_from_sensor
+    pair = RawStereoPair(
+        (a, b),
+        (left.coefficients, right.coefficients),
+        left.model,
+        left.body_from_sensor,
+        f"{left.path} and {right.path}",
+        "a stereo pair has cam0 on the left and cam1 on its right; check the T_BS",
+    )
+    return rectify_raw_pair(pair, inverse(right.body_from_sensor) @ left.body_from_sensor)
+
+
+def rectify_raw_pair(pair: RawStereoPair, right_from_left: F64) -> StereoRectification:
+    """Rectify two raw cameras with OpenCV's ``stereoRectify`` (``fisheye.stereoRectify`` for
+    the equidistant model) given the (4, 4) pose of the left camera in the right one
+    (``x_right = R x_left + T``), and build the remap tables.
+
+    Raises:
+        InputError: the right camera is not to the right of the left one, or the pair is
+            vertical.
+    """
+    import cv2
+
+    a, b = pair.cameras
     # OpenCV's fisheye module reshapes its inputs and needs them contiguous.
-    rotation = np.ascontiguousarray(cam1_from_cam0[:3, :3])
-    translation = np.ascontiguousarray(cam1_from_cam0[:3, 3].reshape(3, 1))
+    rotation = np.ascontiguousarray(right_from_left[:3, :3], dtype=np.float64)
+    translation = np.ascontiguousarray(right_from_left[:3, 3].reshape(3, 1), dtype=np.float64)
     size = (a.width, a.height)
-    d0 = np.asarray(left.coefficients, dtype=np.float64)
-    d1 = np.asarray(right.coefficients, dtype=np.float64)
-    if left.model == RADTAN:
+    d0, d1 = (np.asarray(c, dtype=np.float64) for c in pair.coefficients)
+    if pair.model == RADTAN:
         r1, r2, p1, p2 = cv2.stereoRectify(
             a.K, d0, b.K, d1, size, rotation, translation, flags=cv2.CALIB_ZERO_DISPARITY, alpha=0
         )[:4]
-        maps = [
-            cv2.initUndistortRectifyMap(k, d, r, p, size, cv2.CV_32FC1)
-            for k, d, r, p in ((a.K, d0, r1, p1), (b.K, d1, r2, p2))
-        ]
     else:
         r1, r2, p1, p2 = cv2.fisheye.stereoRectify(
             a.K,
@@ -338,28 +384,52 @@ def rectify_stereo(left: CameraSensor, right: CameraSensor) -> StereoRectificati
             balance=0.0,
             fov_scale=1.0,
         )[:4]
-        maps = [
-            cv2.fisheye.initUndistortRectifyMap(k, d, r, p, size, cv2.CV_32FC1)
-            for k, d, r, p in ((a.K, d0, r1, p1), (b.K, d1, r2, p2))
-        ]
-    p1, p2 = np.asarray(p1, dtype=np.float64), np.asarray(p2, dtype=np.float64)
-    baseline = -p2[0, 3] / p2[0, 0]
-    if abs(p2[1, 3]) > 1e-9 * abs(p2[0, 0]) or baseline <= 0:
+    return rectify_with_projections(pair, (r1, r2), (p1, p2))
+
+
+def rectify_with_projections(
+    pair: RawStereoPair, rotations: tuple[Any, Any], projections: tuple[Any, Any]
+) -> StereoRectification:
+    """The remap tables of a rectification already computed, as ROS's stereo calibration
+    stores it: each camera's rotation ``R`` onto the rectified frame (3x3) and rectified
+    projection ``P`` (3x4; the right one's ``P[0,3] = -fx * baseline``).
+
+    Raises:
+        InputError: the right camera is not to the right of the left one, or the pair is
+            vertical.
+    """
+    import cv2
+
+    a, b = pair.cameras
+    size = (a.width, a.height)
+    r1, r2 = (np.asarray(r, dtype=np.float64).reshape(3, 3) for r in rotations)
+    p1, p2 = (np.asarray(p, dtype=np.float64).reshape(3, 4) for p in projections)
+    d0, d1 = (np.asarray(c, dtype=np.float64) for c in pair.coefficients)
+    init = (
+        cv2.initUndistortRectifyMap if pair.model == RADTAN else cv2.fisheye.initUndistortRectifyMap
+    )
+    maps = [
+        init(k, d, r, np.ascontiguousarray(p[:, :3]), size, cv2.CV_32FC1)
+        for k, d, r, p in ((a.K, d0, r1, p1), (b.K, d1, r2, p2))
+    ]
+    baseline = (p1[0, 3] - p2[0, 3]) / p2[0, 0]
+    if abs(p2[1, 3] - p1[1, 3]) > 1e-9 * abs(p2[0, 0]) or baseline <= 0:
         raise InputError(
-            f"{left.path} and {right.path}: the second camera is not to the right of the first "
+            f"{pair.where}: the second camera is not to the right of the first "
             f"(rectified offset x {-p2[0, 3]:.4g}, y {-p2[1, 3]:.4g} pixel metres)",
-            hint="a stereo pair has cam0 on the left and cam1 on its right; check the T_BS",
+            hint=pair.hint,
         )
     fx, fy, cx, cy = (float(v) for v in (p1[0, 0], p1[1, 1], p1[0, 2], p1[1, 2]))
     camera = PinholeCamera(a.width, a.height, fx, fy, cx, cy)
-    left_from_raw = np.asarray(r1, dtype=np.float64)
-    body_from_left = left.body_from_sensor @ make_pose(left_from_raw.T, np.zeros(3))
+    body_from_left = pair.body_from_left @ make_pose(r1.T, np.zeros(3))
     return StereoRectification(
         StereoRig(camera, float(baseline), body_from_left),
         _tables(maps[0]),
         _tables(maps[1]),
-        left_from_raw,
-        np.asarray(r2, dtype=np.float64),
+        r1,
+        r2,
+        p1,
+        p2,
     )
 
 
@@ -373,9 +443,12 @@ __all__ = [
     "RADTAN",
     "CameraSensor",
     "ImuSensor",
+    "RawStereoPair",
     "StereoRectification",
     "read_camera_sensor",
     "read_imu_sensor",
     "read_sensor_yaml",
+    "rectify_raw_pair",
     "rectify_stereo",
+    "rectify_with_projections",
 ]

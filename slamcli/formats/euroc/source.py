@@ -268,6 +268,11 @@ class EurocSource(SourceBase):
         """(P,) int64 left stamps of the pairs, in time order."""
         return self.left_csv.stamps_ns[self.left_index]
 
+    @property
+    def pair_right_stamps_ns(self) -> NDArray[np.int64]:
+        """(P,) int64 right stamps of the pairs, in the order of :attr:`pair_stamps_ns`."""
+        return self.right_csv.stamps_ns[self.right_index]
+
     @cached_property
     def _imu(
         self,
@@ -322,12 +327,13 @@ class EurocSource(SourceBase):
     def _check_kinds(self, kinds: Collection[str]) -> set[str]:
         return provided_kinds(known_kinds(kinds), FRAME_KINDS, self.path, "a EuRoC / ASL folder")
 
-    def _pair(self, k: int) -> StereoFrame | None:
-        """Pair ``k`` rectified, or None (logged and counted) when an image is unusable."""
+    def raw_pair(self, k: int) -> tuple[NDArray[np.uint8], NDArray[np.uint8]] | None:
+        """Pair ``k``'s left and right images as recorded (not rectified): grey (H, W) or RGB
+        (H, W, 3) uint8, or None (logged and counted in :attr:`stats`) when one is unusable."""
         li, ri = int(self.left_index[k]), int(self.right_index[k])
         left = self._load(self.left_csv, li)
         right = self._load(self.right_csv, ri) if left is not None else None
-        name = f"cam0/data/{self.left_csv.files[li]} + cam1/data/{self.right_csv.files[ri]}"
+        name = self._pair_name(li, ri)
         if left is not None and right is not None and left.ndim != right.ndim:
             log.warning("skipping the stereo pair %s: one image is grey, the other colour", name)
             left = None
@@ -335,15 +341,26 @@ class EurocSource(SourceBase):
             self.stats.skipped += 1
             self.stats.skipped_names.append(name)
             return None
-        left, right = self.rectification.remap(left, right)
+        return left, right
+
+    def _pair(self, k: int) -> StereoFrame | None:
+        """Pair ``k`` rectified, or None (logged and counted) when an image is unusable."""
+        raw = self.raw_pair(k)
+        if raw is None:
+            return None
+        li, ri = int(self.left_index[k]), int(self.right_index[k])
+        left, right = self.rectification.remap(*raw)
         return StereoFrame(
             int(self.left_csv.stamps_ns[li]),
             left,
             right,
             self.rig,
             int(self.right_csv.stamps_ns[ri]),
-            name,
+            self._pair_name(li, ri),
         )
+
+    def _pair_name(self, li: int, ri: int) -> str:
+        return f"cam0/data/{self.left_csv.files[li]} + cam1/data/{self.right_csv.files[ri]}"
 
     def _load(self, csv: ImageCsv, k: int) -> NDArray[np.uint8] | None:
         """Image ``k`` of ``csv`` as grey (H, W) or RGB (H, W, 3) uint8, or None (logged) when

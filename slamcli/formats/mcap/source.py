@@ -35,6 +35,10 @@ warning, and ``info`` says so. With scans asked for and no odometry topic in the
 odometry comes from tf: the moving transform nearest above the scan's frame (usually ``odom ->
 base_link``), as poses without velocities.
 
+Stereo pairs (``--left-topic``, ``--right-topic``, or the one pair of image topics named like
+left/right or cam0/cam1) are paired by header stamp within half a frame period and rectified
+from each camera's ``camera_info`` (and tf): see :mod:`slamcli.formats.mcap.stereo`.
+
 Ground truth comes from a pose topic (``--gt-topic``) or from tf (``--gt-frame``: the pose of
 that frame in the root of its tree). Before any frame has been read, :meth:`groundtruth` returns
 the poses as recorded. After frames have been read it is interpolated (SLERP) to the stamps of
@@ -57,7 +61,7 @@ from numpy.typing import NDArray
 
 from slamcli.errors import ConfigError, InputError, TopicNotFoundError
 from slamcli.formats import sniff
-from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, StreamInfo
+from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo
 from slamcli.formats.mcap.adapters import Adapter, adapter_for, is_static_tf_topic
 from slamcli.formats.mcap.decode import DecodeError, decoder_for
 from slamcli.formats.mcap.mounting import ScanMounter
@@ -72,16 +76,21 @@ from slamcli.formats.mcap.records import (
     TransformRecord,
     TwistRecord,
 )
+from slamcli.formats.mcap.stereo import (
+    StereoSetup,
+    StereoStream,
+    StereoSummary,
+    open_stereo,
+    stereo_info,
+)
 from slamcli.formats.mcap.tf import moving_frame_poses
 from slamcli.formats.mcap.topics import (
-    CAMERA_SCHEMAS,
     IMAGE_SCHEMAS,
     LANDMARK_SCHEMAS,
     SCAN_SCHEMAS,
     TF_SCHEMAS,
+    TOPIC_OPTIONS,
     TopicChooser,
-    rate,
-    stream_kind,
 )
 from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.text import format_stamp
@@ -102,7 +111,7 @@ from slamcli.types import (
 log = logging.getLogger(__name__)
 
 
-FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu", "scan")
+FRAME_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu", "scan", "stereo")
 
 _StreamPairer = StreamPairer
 """The pairer under the name tests import it by."""
@@ -117,8 +126,8 @@ class McapSource(SourceBase):
     Args:
         path: the ``.mcap`` file.
         rgb_topic, depth_topic, camera_info_topic, odom_topic, landmark_topic, scan_topic,
-            gt_topic: topic choices; None picks the one topic of the right type when it is
-            needed.
+            gt_topic, left_topic, right_topic: topic choices; None picks the one topic (the
+            one stereo pair) of the right type when it is needed.
         gt_frame: take ground truth from tf as the pose of this frame in its tree's root.
         max_dt, dt_offset: colour/depth pairing tolerance and depth stamp offset, seconds.
         camera, fx, fy, cx, cy: camera when the log has no calibration topic (see
@@ -131,23 +140,8 @@ class McapSource(SourceBase):
 
     format_name = "mcap"
     OPTIONS = (
-        "max_dt",
-        "dt_offset",
-        "camera",
-        "fx",
-        "fy",
-        "cx",
-        "cy",
-        "strict",
-        "max_chunk_mb",
-        "rgb_topic",
-        "depth_topic",
-        "camera_info_topic",
-        "odom_topic",
-        "landmark_topic",
-        "scan_topic",
-        "gt_topic",
-        "gt_frame",
+        *("max_dt", "dt_offset", "camera", "fx", "fy", "cx", "cy", "strict", "max_chunk_mb"),
+        *TOPIC_OPTIONS,
     )
 
     @classmethod
@@ -178,6 +172,8 @@ class McapSource(SourceBase):
         scan_topic: str | None = None,
         gt_topic: str | None = None,
         gt_frame: str | None = None,
+        left_topic: str | None = None,
+        right_topic: str | None = None,
         max_chunk_bytes: int = DEFAULT_MAX_CHUNK_BYTES,
     ) -> None:
         if not np.isfinite(max_dt) or max_dt <= 0:
@@ -199,6 +195,8 @@ class McapSource(SourceBase):
             "landmarks": landmark_topic,
             "scan": scan_topic,
             "groundtruth": gt_topic,
+            "left": left_topic,
+            "right": right_topic,
         }
         self.gt_frame = gt_frame
         self.stats = ReadStats()
@@ -211,6 +209,7 @@ class McapSource(SourceBase):
         self._schema = self._topics.schema
         self._mounter: ScanMounter | None = None
         self._camera: tuple[PinholeCamera, str] | None = None
+        self._stereo: StereoSetup | None = None
         self._frame_stamps: list[int] = []
         self._motion_stamps: list[int] = []
         self._decoders: dict[str, tuple[Callable[[bytes], Any], Adapter]] = {}
@@ -262,27 +261,8 @@ class McapSource(SourceBase):
         """The colour camera and a description of where it came from."""
         if self._camera is not None:
             return self._camera
-        explicit = self._want["camera"]
-        cam_topics = self._topics_of(CAMERA_SCHEMAS)
-        rgb = str(self.topic("rgb"))
-        found: tuple[str, str] | None = None
-        if explicit is not None:
-            found = (self.topic("camera") or explicit, f"topic {explicit} (--camera-info-topic)")
-        else:
-            sibling = _sibling_camera_topic(rgb, cam_topics)
-            if sibling is not None:
-                found = (sibling, f"topic {sibling} (beside {rgb})")
-            else:
-                probe = self._probe(rgb)
-                frame = probe.frame_id if probe is not None else ""
-                for t in cam_topics:
-                    rec = self._first_record(t)
-                    if frame and isinstance(rec, CameraInfoRecord) and rec.frame_id == frame:
-                        found = (t, f"topic {t} (frame id {frame} matches {rgb})")
-                        break
         options_given = any(v is not None for v in self._camera_options)
-        if found is None and not options_given and len(cam_topics) == 1:
-            found = (cam_topics[0], f"topic {cam_topics[0]} (the log's only calibration topic)")
+        found = self._topics.camera_topic(str(self.topic("rgb")), options_given, self._first_record)
         if found is not None:
             rec = self._first_record(found[0])
             if not isinstance(rec, CameraInfoRecord):
@@ -360,10 +340,12 @@ class McapSource(SourceBase):
     # -- frames --------------------------------------------------------------------------------
 
     def frames(self, kinds: Collection[str] = ("rgbd",)) -> Iterator[Frame]:
-        """Frames of the given kinds (rgbd, image, odometry, landmarks, imu, scan) in time order.
+        """Frames of the given kinds (rgbd, image, odometry, landmarks, imu, scan, stereo) in
+        time order.
 
         Odometry, landmark and scan frames come in the order of their stamps, in that order at
-        equal stamps (see the module docstring); images and IMU readings in log-time order.
+        equal stamps (see the module docstring); images and IMU readings in log-time order;
+        stereo pairs and IMU readings read with them in stamp order (IMU first at equal stamps).
         """
         unknown = set(kinds) - set(FRAME_KINDS)
         if unknown:
@@ -384,6 +366,10 @@ class McapSource(SourceBase):
             roles[str(self.topic("landmarks"))] = "landmarks"
         if "imu" in kinds:
             roles[str(self.topic("imu"))] = "imu"
+        stereo = None
+        if "stereo" in kinds:
+            setup = self._stereo_setup()
+            roles.update({setup.topics.left: "left", setup.topics.right: "right"})
         scans = None
         if "scan" in kinds:
             roles[str(self.topic("scan"))] = "scan"
@@ -401,6 +387,8 @@ class McapSource(SourceBase):
         count_motion = camera is None
         self._frame_stamps = []
         self._motion_stamps = []
+        if "stereo" in kinds:
+            stereo = StereoStream(self.path, self._stereo_setup(), self.stats, self._frame_stamps)
         for topic, rec in self._records(roles):
             role = roles[topic]
             if role in ("rgb", "depth") and isinstance(rec, ImageRecord) and camera is not None:
@@ -419,7 +407,10 @@ class McapSource(SourceBase):
                 for odo in scans.odometry(rec):
                     yield from self._motion(order.add("odometry", odo), count_motion)
             elif role == "imu" and isinstance(rec, ImuFrame):
-                yield rec
+                yield from stereo.add_imu(rec) if stereo is not None else (rec,)
+            elif role in ("left", "right") and isinstance(rec, ImageRecord) and stereo is not None:
+                yield from stereo.add(role, rec)
+        yield from stereo.finish() if stereo is not None else ()
         yield from self._motion(order.flush(), count_motion)
         if pairer is not None and camera is not None:
             yield from self._emit(pairer.ready(final=True), camera)
@@ -432,6 +423,20 @@ class McapSource(SourceBase):
             if count:
                 self.stats.read += 1
             yield frame
+
+    def _stereo_setup(self) -> StereoSetup:
+        """The stereo topics, calibration and pairing tolerance, found once."""
+        if self._stereo is None:
+            self._stereo = open_stereo(
+                self.path,
+                self._topics,
+                self._want,
+                self.log,
+                self._first_readable,
+                lambda: (rec for _, rec in self._records(self._topics_of(TF_SCHEMAS))),
+                self.max_dt_ns,
+            )
+        return self._stereo
 
     # -- scans ---------------------------------------------------------------------------------
 
@@ -575,46 +580,23 @@ class McapSource(SourceBase):
 
     def info(self, deep: bool = False, progress: ProgressFn | None = None) -> SourceInfo:
         stats = self.log.stats()
-        streams = []
+        streams, undecodable = self._topics.streams(self._first_readable)
         problems: list[str] = []
-        undecodable: dict[str, str] = {}
-        for topic, ch in sorted(self._channels.items()):
-            st = stats.get(ch.id)
-            count = st.count if st else 0
-            try:
-                decoder_for(ch)
-                if adapter_for(ch.schema_name) is None:
-                    undecodable[topic] = f"type {ch.schema_name} is not read by slamcli"
-            except DecodeError as exc:
-                undecodable[topic] = exc.msg
-            detail = f"{ch.schema_name} ({ch.message_encoding})"
-            if self._schema[topic] in SCAN_SCHEMAS and topic not in undecodable:
-                first = self._first_readable(topic)
-                if isinstance(first, ScanRecord):
-                    detail += f", {first.scan.ranges_m.size} beams"
-            streams.append(
-                StreamInfo(
-                    name=topic,
-                    kind=stream_kind(self._schema[topic]),
-                    count=count,
-                    rate_hz=rate(count, st.first_ns, st.last_ns) if st else None,
-                    start_s=st.first_ns * 1e-9 if st and st.first_ns is not None else None,
-                    end_s=st.last_ns * 1e-9 if st and st.last_ns is not None else None,
-                    detail=detail,
-                )
-            )
-        frames = 0
-        camera: PinholeCamera | None = None
-        camera_source = ""
-        details: dict[str, Any] = {"undecodable": undecodable}
+        stereo = self._stereo_info(deep)
+        frames = stereo.stream.count if stereo.stream is not None else 0
+        camera, camera_source = stereo.camera, stereo.camera_source
+        details: dict[str, Any] = {"undecodable": undecodable, **stereo.details}
+        streams.extend([stereo.stream] if stereo.stream is not None else [])
+        problems.extend(stereo.problems)
         try:
             rgb, depth = self.topic("rgb"), self.topic("depth")
             camera, camera_source = self.camera()
             details["rgb_topic"], details["depth_topic"] = rgb, depth
             frames = self._count_pairs(deep, progress)
         except TopicNotFoundError as exc:
-            if self._topics_of(IMAGE_SCHEMAS) or not self._topics_of(
-                LANDMARK_SCHEMAS | SCAN_SCHEMAS
+            if stereo.stream is None and (
+                self._topics_of(IMAGE_SCHEMAS)
+                or not self._topics_of(LANDMARK_SCHEMAS | SCAN_SCHEMAS)
             ):
                 problems.append(f"no RGB-D frames: {exc.msg}")
         try:
@@ -688,6 +670,14 @@ class McapSource(SourceBase):
                 pass
         return out
 
+    def _stereo_info(self, deep: bool) -> StereoSummary:
+        """The stereo pairs for ``info``; with ``deep`` every pair is read."""
+        reader = ((lambda: self.frames(("stereo",))), self.stats) if deep else None
+        want = (self._want, self.max_dt_ns)
+        out = stereo_info(self.path, self._topics, want, self.log, self._stereo_setup, reader)
+        self._frame_stamps = []
+        return out
+
     def _count_pairs(self, deep: bool, progress: ProgressFn | None) -> int:
         """Paired RGB-D frames: by header stamps when ``deep``, else by log times."""
         rgb, depth = str(self.topic("rgb")), str(self.topic("depth"))
@@ -710,16 +700,6 @@ class McapSource(SourceBase):
             self.dt_offset_ns,
         )
         return len(first)
-
-
-def _sibling_camera_topic(image_topic: str, camera_topics: list[str]) -> str | None:
-    parts = image_topic.strip("/").split("/")
-    for depth in range(len(parts) - 1, 0, -1):
-        prefix = "/" + "/".join(parts[:depth])
-        for name in ("camera_info", "calibration"):
-            if f"{prefix}/{name}" in camera_topics:
-                return f"{prefix}/{name}"
-    return None
 
 
 def _odometry_frame(rec: PoseRecord | TwistRecord) -> OdometryFrame:

@@ -16,9 +16,11 @@ from pathlib import Path
 from typing import Any
 
 from slamcli.errors import TopicNotFoundError
-from slamcli.formats.mcap.adapters import normalize_schema_name
+from slamcli.formats.base import StreamInfo
+from slamcli.formats.mcap.adapters import adapter_for, normalize_schema_name
+from slamcli.formats.mcap.decode import DecodeError, decoder_for
 from slamcli.formats.mcap.observations import SCHEMA_NAME as LANDMARK_SCHEMA_NAME
-from slamcli.formats.mcap.records import ChannelInfo, ImageRecord
+from slamcli.formats.mcap.records import CameraInfoRecord, ChannelInfo, ImageRecord, ScanRecord
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +50,20 @@ TF_SCHEMAS = frozenset(
 IMU_SCHEMAS = frozenset({"sensor_msgs/msg/Imu"})
 LANDMARK_SCHEMAS = frozenset({LANDMARK_SCHEMA_NAME})
 SCAN_SCHEMAS = frozenset({"sensor_msgs/msg/LaserScan", "foxglove.LaserScan"})
+
+TOPIC_OPTIONS = (
+    "rgb_topic",
+    "depth_topic",
+    "camera_info_topic",
+    "odom_topic",
+    "landmark_topic",
+    "scan_topic",
+    "gt_topic",
+    "gt_frame",
+    "left_topic",
+    "right_topic",
+)
+"""The options that choose topics (or the tf frame of the ground truth), as sources take them."""
 
 ROLES: dict[str, tuple[frozenset[str], str]] = {
     "rgb": (IMAGE_SCHEMAS, "--rgb-topic"),
@@ -137,6 +153,68 @@ class TopicChooser:
         hz = rate(st.count, st.first_ns, st.last_ns) if st else None
         return [topic, ch.schema_name, encoding, str(count), f"{hz:.1f}" if hz else "-"]
 
+    def camera_topic(
+        self, rgb: str, options_given: bool, first_record: Callable[[str], Any]
+    ) -> tuple[str, str] | None:
+        """The calibration topic of the colour topic ``rgb`` and where it was found, or None.
+
+        In this order: ``--camera-info-topic``; the topic beside ``rgb``
+        (:func:`sibling_camera_topic`); a calibration topic whose first message
+        (``first_record``) has the frame id of ``rgb``'s images; the log's only calibration
+        topic, unless camera options were given (``options_given``).
+        """
+        explicit = self.wanted.get("camera")
+        cameras = self.of(CAMERA_SCHEMAS)
+        if explicit is not None:
+            return self.choose("camera") or explicit, f"topic {explicit} (--camera-info-topic)"
+        sibling = sibling_camera_topic(rgb, cameras)
+        if sibling is not None:
+            return sibling, f"topic {sibling} (beside {rgb})"
+        probe = self._probe(rgb)
+        frame = probe.frame_id if probe is not None else ""
+        for t in cameras if frame else ():
+            rec = first_record(t)
+            if isinstance(rec, CameraInfoRecord) and rec.frame_id == frame:
+                return t, f"topic {t} (frame id {frame} matches {rgb})"
+        if not options_given and len(cameras) == 1:
+            return cameras[0], f"topic {cameras[0]} (the log's only calibration topic)"
+        return None
+
+    def streams(
+        self, first_readable: Callable[[str], Any]
+    ) -> tuple[list[StreamInfo], dict[str, str]]:
+        """Every topic as ``info`` lists it (kind, count, rate, span, type; a scan topic's
+        beams from its first readable record), and the topics slamcli cannot read, with why."""
+        stats = self._stats()
+        streams = []
+        undecodable: dict[str, str] = {}
+        for topic, ch in sorted(self.channels.items()):
+            st = stats.get(ch.id)
+            count = st.count if st else 0
+            try:
+                decoder_for(ch)
+                if adapter_for(ch.schema_name) is None:
+                    undecodable[topic] = f"type {ch.schema_name} is not read by slamcli"
+            except DecodeError as exc:
+                undecodable[topic] = exc.msg
+            detail = f"{ch.schema_name} ({ch.message_encoding})"
+            if self.schema[topic] in SCAN_SCHEMAS and topic not in undecodable:
+                first = first_readable(topic)
+                if isinstance(first, ScanRecord):
+                    detail += f", {first.scan.ranges_m.size} beams"
+            streams.append(
+                StreamInfo(
+                    name=topic,
+                    kind=stream_kind(self.schema[topic]),
+                    count=count,
+                    rate_hz=rate(count, st.first_ns, st.last_ns) if st else None,
+                    start_s=st.first_ns * 1e-9 if st and st.first_ns is not None else None,
+                    end_s=st.last_ns * 1e-9 if st and st.last_ns is not None else None,
+                    detail=detail,
+                )
+            )
+        return streams, undecodable
+
     def reference(self, required: bool) -> str | None:
         """The ground-truth topic. Chosen automatically, it is never the odometry topic being
         read: a run scored against its own input measures nothing."""
@@ -202,3 +280,16 @@ class TopicChooser:
             )
         self.chosen[role] = chosen
         return chosen
+
+
+def sibling_camera_topic(image_topic: str, camera_topics: Collection[str]) -> str | None:
+    """The calibration topic beside an image topic: ``camera_info`` (or ``calibration``) in
+    its namespace or the nearest one above (``/cam/color/image_raw`` ->
+    ``/cam/color/camera_info``), None when there is none."""
+    parts = image_topic.strip("/").split("/")
+    for depth in range(len(parts) - 1, 0, -1):
+        prefix = "/" + "/".join(parts[:depth])
+        for name in ("camera_info", "calibration"):
+            if f"{prefix}/{name}" in camera_topics:
+                return f"{prefix}/{name}"
+    return None
