@@ -9,7 +9,10 @@ What is written depends on the input and on ``out``'s suffix, decided here in th
 3. A landmark folder (``odometry.csv`` and ``measurements.csv``): an MCAP landmark log for
    ``slamcli run ekf`` (:func:`~slamcli.formats.mcap.write.write_landmark_log`).
 4. A folder of runs (as ``slamcli demo`` writes): refused, naming the runs it holds.
-5. Any other source :func:`~slamcli.formats.open_source` recognises: an MCAP log of its RGB-D
+5. A KITTI or EuRoC stereo folder: an MCAP log of its images as recorded, their calibration, the
+   IMU (EuRoC: from 1 s before the first pair to 1 s after the last) and the ground truth
+   (:func:`~slamcli.formats.mcap.write.stereo.write_stereo_mcap`).
+6. Any other source :func:`~slamcli.formats.open_source` recognises: an MCAP log of its RGB-D
    frames (:func:`~slamcli.formats.mcap.write.write_source_mcap`).
 """
 
@@ -19,7 +22,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from slamcli.errors import ConfigError
+from slamcli.errors import ConfigError, InputError
 
 if TYPE_CHECKING:
     from slamcli.formats.mcap.write import McapWriteSummary
@@ -28,8 +31,11 @@ if TYPE_CHECKING:
 TRAJECTORY_SUFFIXES = {".tum": "tum", ".txt": "tum", ".kitti": "kitti"}
 """Output suffixes that ask for a trajectory, and the trajectory format each writes."""
 
-KINDS = ("trajectory", "run", "landmarks", "source")
+KINDS = ("trajectory", "run", "landmarks", "stereo", "source")
 """What :func:`convert` found the input to be (:attr:`ConvertResult.kind`)."""
+
+STEREO_FORMATS = ("kitti", "euroc")
+"""The source formats written as stereo logs."""
 
 
 @dataclass
@@ -83,8 +89,10 @@ def convert(
             :func:`~slamcli.formats.mcap.write.write_source_mcap`).
         force: replace an existing ``out``.
         source_options: options for :func:`~slamcli.formats.open_source`; a trajectory export
-            takes ``gt_topic``, ``gt_frame`` and ``strict`` from them.
-        progress: called as ``progress(frames_done, frames_total)`` while converting a source.
+            takes ``gt_topic``, ``gt_frame`` and ``strict`` from them; for a stereo folder,
+            ``groundtruth`` names a trajectory file written instead of the folder's own.
+        progress: called as ``progress(frames_done, frames_total)`` while converting a source
+            (stereo pairs for a stereo folder).
 
     Raises:
         ConfigError: an option that does not apply to the input. InputError: an input that
@@ -127,6 +135,11 @@ def convert(
     if sub_runs(src):
         # Raises the error that names the runs the folder holds.
         read_run(src)
+    stereo = _stereo_format(src)
+    if stereo is not None:
+        given = (["--flavor foxglove"] if flavor == "foxglove" else []) + rgbd_only
+        _refuse(src, given, "stereo folders", "a stereo folder is written as ROS 2 messages")
+        return _convert_stereo(src, dest, stereo, options, force, progress)
     from slamcli.formats import open_source
     from slamcli.formats.mcap.write import write_source_mcap
 
@@ -153,6 +166,42 @@ def _refuse(input: Path, flags: list[str], what: str, why: str) -> None:
             f"{input}: {', '.join(flags)} {verb} for RGB-D inputs, not {what}",
             hint=f"{why}; drop those options",
         )
+
+
+def _stereo_format(input: Path) -> str | None:
+    """``"kitti"`` or ``"euroc"`` for a folder of that layout, else None."""
+    from slamcli.formats import SNIFFERS
+
+    return next((name for name in STEREO_FORMATS if SNIFFERS[name](input)), None)
+
+
+def _convert_stereo(
+    input: Path,
+    out: Path,
+    format: str,
+    options: dict[str, Any],
+    force: bool,
+    progress: ProgressFn | None,
+) -> ConvertResult:
+    """A stereo folder as an MCAP log; ``options["groundtruth"]`` (a trajectory file) replaces
+    the folder's ground truth."""
+    from slamcli.formats import open_source
+    from slamcli.formats.mcap.write.stereo import write_stereo_mcap
+    from slamcli.formats.trajectory import read_trajectory
+
+    given = options.pop("groundtruth", None)
+    truth = None
+    if given is not None:
+        path = Path(str(given))
+        if not path.is_file():
+            raise InputError(
+                f"--groundtruth {given}: no such file",
+                hint="give a trajectory file (TUM, EuRoC or KITTI) of the body's poses",
+            )
+        truth = read_trajectory(path)
+    with open_source(input, format, **options) as source:
+        summary = write_stereo_mcap(source, out, groundtruth=truth, force=force, progress=progress)
+    return ConvertResult("stereo", out, summary)
 
 
 def _export_trajectory(
@@ -187,4 +236,4 @@ def _export_trajectory(
     return ConvertResult("trajectory", out, None, len(trajectory), source_name, lost)
 
 
-__all__ = ["KINDS", "TRAJECTORY_SUFFIXES", "ConvertResult", "convert"]
+__all__ = ["KINDS", "STEREO_FORMATS", "TRAJECTORY_SUFFIXES", "ConvertResult", "convert"]

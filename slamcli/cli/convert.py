@@ -1,4 +1,5 @@
-"""``slamcli convert``: RGB-D or landmark folders to MCAP logs, run folders to ``result.mcap``."""
+"""``slamcli convert``: RGB-D, stereo or landmark folders to MCAP logs, run folders to
+``result.mcap``."""
 
 from __future__ import annotations
 
@@ -16,8 +17,9 @@ from slamcli.errors import DataLossError
 if TYPE_CHECKING:
     from slamcli.formats.mcap.write import McapWriteSummary
 
-HELP = """Convert a TUM RGB-D folder or a landmark folder to an MCAP log, a run folder to a \
-Foxglove result log, or a pose topic of an MCAP log to a trajectory file.
+HELP = """Convert a TUM RGB-D folder, a KITTI or EuRoC stereo folder or a landmark folder to an \
+MCAP log, a run folder to a Foxglove result log, or a pose topic of an MCAP log to a trajectory \
+file.
 
 [bold]RGB-D folder[/] -> MCAP: colour, depth, camera info, ground truth and (ros2 only) the \
 accelerometer on /camera/color/image_raw, /camera/depth/image_raw, /camera/color/camera_info, \
@@ -27,6 +29,15 @@ CompressedImage, CameraCalibration, PoseInFrame and FrameTransform (/tf) as JSON
 official Foxglove JSON schemas. Depth 16UC1 is millimetres (rounded: TUM's 0.2 mm steps are \
 lost); 32FC1 is metres, exactly the source's values. --compress-images jpeg|png compresses \
 colour, and in the ros2 flavour 16UC1 depth as lossless "16UC1; compressedDepth png".
+
+[bold]Stereo folder[/] (KITTI odometry, EuRoC / ASL) -> MCAP as ROS 2 messages (CDR): the \
+images as recorded (KITTI's rectified, EuRoC's raw) as sensor_msgs/Image (mono8, rgb8 for \
+colour) on /cam0/image_raw and /cam1/image_raw, a CameraInfo per image on /cam0/camera_info and \
+/cam1/camera_info (the raw K and D, the rectification R, the rectified P; the right P[0,3] = \
+-fx * baseline), the cameras (and IMU) on the body as base_link -> cam0, cam1, imu0 on \
+/tf_static, and the ground truth of base_link (--groundtruth FILE, else the folder's) as \
+PoseStamped in world on /groundtruth. EuRoC's IMU goes on /imu0, only the samples from 1 s \
+before the first stereo pair to 1 s after the last. Only pairs whose two images exist are written.
 
 [bold]Landmark folder[/] (odometry.csv and measurements.csv, as `slamcli synth landmarks` \
 writes) -> MCAP for `slamcli run ekf`: odometry as nav_msgs/msg/Odometry on /odom (twist = the \
@@ -54,6 +65,8 @@ Examples:
 [bold]slamcli convert sample_data/rgbd_room room_fg.mcap --flavor foxglove --compress-images jpeg[/]
 
 [bold]slamcli convert sample_data/landmarks landmarks.mcap[/]
+
+[bold]slamcli convert ../shared/data/stereo/kitti_excerpt_1 kitti.mcap[/]
 
 [bold]slamcli convert runs/demo/dense runs/demo/dense/result.mcap[/]
 
@@ -85,6 +98,8 @@ _NOT_FOR_CONVERT = (
     "camera_info_topic",
     "odom_topic",
     "landmark_topic",
+    "left_topic",
+    "right_topic",
 )
 """Source options convert has no use for: it reads RGB-D and landmark folders whole, and from an
 MCAP log only the poses of --gt-topic or --gt-frame."""
@@ -100,7 +115,8 @@ def convert(
     input: Annotated[
         Path,
         typer.Argument(
-            help="A TUM RGB-D folder, a landmark folder, a run folder, or an MCAP log.",
+            help="A TUM RGB-D folder, a KITTI or EuRoC folder, a landmark folder, a run folder, "
+            "or an MCAP log.",
             show_default=False,
         ),
     ],
