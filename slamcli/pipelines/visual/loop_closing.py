@@ -478,10 +478,16 @@ def essential_graph(
     body, when the camera sits at ``body_from_camera`` on it)."""
     from slamcli.graphs.pose_graph import Edge
 
-    b = np.eye(4) if body_from_camera is None else body_from_camera
+    b = (
+        None
+        if body_from_camera is None or np.array_equal(body_from_camera, np.eye(4))
+        else (body_from_camera)
+    )
     index = {k.id: i for i, k in enumerate(kfs)}
     edges: list[Edge] = []
     for a, c, kind in smap.essential_links(kfs):
         rel = smap.keyframes[a].cam_from_world @ inverse(smap.keyframes[c].cam_from_world)
-        edges.append(Edge(index[a], index[c], b @ rel @ inverse(b), kind=kind))
+        if b is not None:
+            rel = b @ rel @ inverse(b)
+        edges.append(Edge(index[a], index[c], rel, kind=kind))
     return edges

@@ -331,7 +331,11 @@ class VisualSlam(PipelineBase):
 
     def _bodies(self, cam_from_world: list[F64]) -> F64:
         """(N, 4, 4) world_from_body of cameras at ``cam_from_world``."""
-        camera_from_body = inverse(self.rig.body_from_camera)
+        body = self.rig.body_from_camera
+        if np.array_equal(body, np.eye(4)):
+            # The camera is the body: no product, so the poses keep their exact bits.
+            return np.stack([inverse(p) for p in cam_from_world]).reshape(-1, 4, 4)
+        camera_from_body = inverse(body)
         return np.stack([inverse(p) @ camera_from_body for p in cam_from_world]).reshape(-1, 4, 4)
 
     def _result(self, main: int | None, trajectory: Trajectory) -> SlamResult:
