@@ -78,8 +78,9 @@ class FrameWriter(abc.ABC):
         """Write one ground-truth pose of the colour camera in ``world``."""
 
     @abc.abstractmethod
-    def imu(self, frame: ImuFrame) -> bool:
-        """Write one IMU reading; False when the flavour has no message for it."""
+    def imu(self, frame: ImuFrame, topic: str = TOPIC_IMU, frame_id: str = IMU_FRAME) -> bool:
+        """Write one IMU reading on ``topic`` in ``frame_id``; False when the flavour has no
+        message for it."""
 
 
 class Ros2Writer(FrameWriter):
@@ -108,9 +109,17 @@ class Ros2Writer(FrameWriter):
         time = self.t["builtin_interfaces/msg/Time"](sec=sec, nanosec=nsec)
         return self.t["std_msgs/msg/Header"](stamp=time, frame_id=frame_id)
 
-    def _image(self, stamp_ns: int, h: int, w: int, encoding: str, data: bytes) -> Any:
+    def _image(
+        self,
+        stamp_ns: int,
+        h: int,
+        w: int,
+        encoding: str,
+        data: bytes,
+        frame_id: str = CAMERA_FRAME,
+    ) -> Any:
         return self.t["sensor_msgs/msg/Image"](
-            header=self._header(stamp_ns, CAMERA_FRAME),
+            header=self._header(stamp_ns, frame_id),
             height=h,
             width=w,
             encoding=encoding,
@@ -257,7 +266,7 @@ class Ros2Writer(FrameWriter):
         )
         self._put(topic, scan.stamp_ns, msg)
 
-    def imu(self, frame: ImuFrame) -> bool:
+    def imu(self, frame: ImuFrame, topic: str = TOPIC_IMU, frame_id: str = IMU_FRAME) -> bool:
         vector3 = self.t["geometry_msgs/msg/Vector3"]
         # ROS convention: covariance element 0 = -1 marks a quantity the sensor does not give.
         unknown = np.zeros(9)
@@ -265,7 +274,7 @@ class Ros2Writer(FrameWriter):
         accel = frame.accel_mps2
         gyro = frame.gyro_radps
         msg = self.t["sensor_msgs/msg/Imu"](
-            header=self._header(frame.stamp_ns, IMU_FRAME),
+            header=self._header(frame.stamp_ns, frame_id),
             orientation=self.t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
             orientation_covariance=unknown.copy(),
             angular_velocity=vector3(*(gyro.tolist() if gyro is not None else (0.0,) * 3)),
@@ -273,7 +282,7 @@ class Ros2Writer(FrameWriter):
             linear_acceleration=vector3(*(accel.tolist() if accel is not None else (0.0,) * 3)),
             linear_acceleration_covariance=np.zeros(9) if accel is not None else unknown.copy(),
         )
-        self._put(TOPIC_IMU, frame.stamp_ns, msg)
+        self._put(topic, frame.stamp_ns, msg)
         return True
 
 
@@ -316,7 +325,7 @@ class FoxgloveWriter(FrameWriter):
     def pose(self, stamp_ns: int, world_from_camera: NDArray[np.float64]) -> None:
         write_pose_and_tf(self.log, TOPIC_GROUNDTRUTH, CAMERA_FRAME, stamp_ns, world_from_camera)
 
-    def imu(self, frame: ImuFrame) -> bool:
+    def imu(self, frame: ImuFrame, topic: str = TOPIC_IMU, frame_id: str = IMU_FRAME) -> bool:
         return False
 
 

@@ -28,7 +28,7 @@ import logging
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -163,17 +163,9 @@ class _StereoRos2Writer(Ros2Writer):
     ) -> None:
         """A ``sensor_msgs/msg/Image``: mono8 for (H, W), rgb8 for (H, W, 3) uint8."""
         h, w = image.shape[:2]
-        data = np.ascontiguousarray(image, dtype=np.uint8).reshape(-1)
-        msg = self.t["sensor_msgs/msg/Image"](
-            header=self._header(stamp_ns, camera.frame_id),
-            height=h,
-            width=w,
-            encoding="mono8" if image.ndim == 2 else "rgb8",
-            is_bigendian=0,
-            step=data.size // h,
-            data=data,
-        )
-        self._put(topic, stamp_ns, msg)
+        data = np.ascontiguousarray(image, dtype=np.uint8).tobytes()
+        encoding = "mono8" if image.ndim == 2 else "rgb8"
+        self._put(topic, stamp_ns, self._image(stamp_ns, h, w, encoding, data, camera.frame_id))
 
     def camera_info(self, topic: str, stamp_ns: int, camera: StereoCameraInfo) -> None:
         """A ``sensor_msgs/msg/CameraInfo`` of ``camera`` (K, D, R, P as the class says)."""
@@ -194,32 +186,6 @@ class _StereoRos2Writer(Ros2Writer):
             roi=roi,
         )
         self._put(topic, stamp_ns, msg)
-
-    def imu_sample(self, frame: ImuFrame) -> None:
-        """A ``sensor_msgs/msg/Imu`` on ``/imu0``; no orientation, and a part the sample lacks
-        marked unknown (covariance element 0 = -1, ROS's convention)."""
-        vector3 = self.t["geometry_msgs/msg/Vector3"]
-        unknown = np.zeros(9)
-        unknown[0] = -1.0
-
-        def part(values: F64 | None) -> tuple[Any, F64]:
-            if values is None:
-                return vector3(x=0.0, y=0.0, z=0.0), unknown.copy()
-            x, y, z = (float(v) for v in values)
-            return vector3(x=x, y=y, z=z), np.zeros(9)
-
-        gyro, gyro_cov = part(frame.gyro_radps)
-        accel, accel_cov = part(frame.accel_mps2)
-        msg = self.t["sensor_msgs/msg/Imu"](
-            header=self._header(frame.stamp_ns, STEREO_IMU_FRAME),
-            orientation=self.t["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=0.0, w=1.0),
-            orientation_covariance=unknown.copy(),
-            angular_velocity=gyro,
-            angular_velocity_covariance=gyro_cov,
-            linear_acceleration=accel,
-            linear_acceleration_covariance=accel_cov,
-        )
-        self._put(TOPIC_STEREO_IMU, frame.stamp_ns, msg)
 
     def static_transforms(self, stamp_ns: int, body_from_child: dict[str, F64]) -> None:
         """One ``tf2_msgs/msg/TFMessage`` on ``/tf_static``: ``base_link`` -> each child."""
@@ -310,7 +276,7 @@ def write_stereo_mcap(
             for stamp, pose in zip(truth.stamps_ns.tolist(), truth.world_from_body, strict=True):
                 writer.pose(stamp, pose)
         for sample in imu:
-            writer.imu_sample(sample)
+            writer.imu(sample, TOPIC_STEREO_IMU, STEREO_IMU_FRAME)
         for left_ns, right_ns, left, right in _pairs(source):
             mcap_log.release(min(left_ns, right_ns) - _REORDER_WINDOW_NS)
             for topic, info_topic, stamp, camera, image in (
