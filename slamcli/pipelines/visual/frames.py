@@ -42,9 +42,6 @@ class StereoFeatures:
     left: Features
     matches: StereoMatches
 
-    def __len__(self) -> int:
-        return len(self.left)
-
 
 Extracted = Features | StereoFeatures
 
@@ -273,7 +270,6 @@ class Rig:
         """A rectified stereo pair as a frame: the left keypoints (already undistorted), each
         with the depth of its right-image match, near ones only (see the module's text)."""
         where = frame.name or str(frame.stamp_ns)
-        _check_sizes(frame)
         cam = frame.rig.camera
         h, w = frame.left.shape[:2]
         if (cam.height, cam.width) != (h, w):
