@@ -1,21 +1,43 @@
-"""Exact grid search time beside scipy's Dijkstra over the same graph, built in the same run.
+"""Exact grid search time beside pyastar2d and python-tcod's A*, and costs against Dijkstra.
 
-Ours is `slamcli.planning.search.grid_search` (best of 3 calls, each building its own jump
-tables; the first call of the process is printed too): JPS on uniform cost, A* with a
-clearance-style extra cost. The reference is `scipy.sparse.csgraph.dijkstra` from the start,
-stopped at our cost (`limit`), over `grid_graph` of the same grid; building that graph is timed
-separately. Costs must agree to 1e-9 (relative, as the reference sums long paths edge by edge).
+Ours is `slamcli.planning.search.grid_search` (method "auto": JPS on uniform cost, A* with the
+clearance cost; best of 3 calls). Beside it, on the same grid in the same run:
 
-Maps: the Nav2 TurtleBot3 maps (pixel < 250 blocked: unknown counts as blocked), start/goal pairs
-at the extremes of the largest free region; and 4000x4000 perfect mazes (seeded recursive
-backtracker, scaled up so corridors are several cells wide) solved corner to corner.
+- pyastar2d (C++ A*): `astar_path(weights, start, goal, allow_diagonal=True)` with float32
+  weights 1 + extra cost, np.inf on blocked cells;
+- python-tcod: `tcod.path.path2d` (A* for one start and one goal) on an int32 cost array,
+  round(100 * (1 + extra cost)), 0 on blocked cells, cardinal 70, diagonal 99.
 
-Usage: python benchmarks/bench_plan.py [MAPS_DIR] [--size 4000] [--no-maze-reference]
+Both use graphs of their own (pyastar2d prices a diagonal like a straight move and squeezes
+between two blocked corners; tcod cuts corners and rounds the costs), so their path costs are
+printed, measured with our cost model, but only ours is checked: against
+`scipy.sparse.csgraph.dijkstra` over `grid_graph` of the same grid, from the start, stopped
+just past our cost (`limit`); agree = within 1e-6 m. Each tool gets its input array prebuilt;
+the timings cover the calls only.
+
+Maps: the shared building floors (stata_basement, building_31) and the Nav2 TurtleBot3 maps,
+read with their yaml files and inflated for a 0.2 m robot (`build_costmap`, blocked cells;
+unknown space blocked); each uniform and with the clearance cost of `clearance_weight=1`;
+seeded random far-apart start/goal pairs in the largest free region. Then 4000x4000 perfect
+mazes (seeded recursive backtracker, corridors several cells wide), uniform cost, corner to
+corner plus seeded random far pairs.
+
+The first section measures numba's share of a command's wall time in fresh processes: the
+import of numba and the first call of each kernel, with an empty cache (compiling) and again
+with that cache filled.
+
+Usage: python benchmarks/bench_plan.py [MAPS_DIR] [--size 4000] [--pairs 4] [--seed 0]
+       [--no-maze-reference] [--no-startup] [--no-maze]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -24,7 +46,53 @@ from typing import Any
 import numpy as np
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared/data/maps"
-GOALS_S = {"map": 0.050, "map +extra": 1.0, "maze": 3.0}
+MAPS = ("stata_basement", "building_31", "tb3_sandbox", "turtlebot3_world")
+BUILDINGS = ("stata_basement", "building_31")
+ROBOT_RADIUS_M = 0.2
+AGREE_M = 1e-6
+
+# Timed in a fresh process: import numba, then the first call of each kernel.
+STARTUP = """
+import json, time
+t0 = time.perf_counter()
+import numba
+t1 = time.perf_counter()
+import numpy as np
+from slamcli.planning.search import grid_distances, grid_search
+blocked = np.zeros((40, 40), dtype=bool)
+blocked[20, 5:35] = True
+extra = np.full((40, 40), 0.5)
+out = {"import numba": t1 - t0}
+for name, call in (
+    ("first call jps", lambda: grid_search(blocked, (0, 0), (39, 39), method="jps")),
+    ("first call astar", lambda: grid_search(blocked, (0, 0), (39, 39), extra_cost=extra)),
+    ("first call grid_distances", lambda: grid_distances(blocked, (39, 39), extra_cost=extra)),
+    ("second call jps", lambda: grid_search(blocked, (0, 0), (39, 39), method="jps")),
+):
+    t = time.perf_counter()
+    call()
+    out[name] = time.perf_counter() - t
+print(json.dumps(out))
+"""
+
+
+def startup() -> None:
+    """Prints numba's import and first-call times, cold (empty cache) then warm."""
+    import os
+
+    print("numba start-up, each in a fresh process (first jps call also pays numba's own")
+    print("one-time set-up on the first compiled call of the process):")
+    with tempfile.TemporaryDirectory() as cache:
+        env = {**os.environ, "NUMBA_CACHE_DIR": cache}
+        for label in ("cold (empty cache)", "warm (cache filled)"):
+            t0 = time.perf_counter()
+            proc = subprocess.run(
+                [sys.executable, "-c", STARTUP], env=env, capture_output=True, text=True, check=True
+            )
+            wall = time.perf_counter() - t0
+            times = json.loads(proc.stdout)
+            parts = "  ".join(f"{k} {v * 1000:.0f} ms" for k, v in times.items())
+            print(f"  {label:<20} {parts}  (process {wall:.1f} s)")
 
 
 def maze(size: int, corridor: int, wall: int, seed: int = 0) -> tuple[np.ndarray, tuple, tuple]:
@@ -60,122 +128,209 @@ def maze(size: int, corridor: int, wall: int, seed: int = 0) -> tuple[np.ndarray
     return blocked, (half, half), (far, far)
 
 
-def far_pairs(blocked: np.ndarray) -> list[tuple[tuple[int, int], tuple[int, int]]]:
-    """Start/goal pairs at the extremes of the largest 4-connected free region."""
+def far_pairs(
+    blocked: np.ndarray, count: int, seed: int, candidates: int = 64
+) -> list[tuple[tuple[int, int], tuple[int, int]]]:
+    """Seeded start/goal pairs in the largest 4-connected free region: of ``candidates``
+    random pairs, each time the one farthest apart (straight-line)."""
     from scipy.ndimage import label
 
     labels, _ = label(~blocked)
     cells = np.argwhere(labels == np.bincount(labels.ravel())[1:].argmax() + 1)
-
-    def at(i: np.intp) -> tuple[int, int]:
-        return int(cells[i, 0]), int(cells[i, 1])
-
-    s, d = cells.sum(axis=1), cells[:, 0] - cells[:, 1]
-    return [
-        (at(cells[:, 0].argmin()), at(cells[:, 0].argmax())),
-        (at(cells[:, 1].argmin()), at(cells[:, 1].argmax())),
-        (at(s.argmin()), at(s.argmax())),
-        (at(d.argmin()), at(d.argmax())),
-    ]
+    rng = np.random.default_rng(seed)
+    pairs = []
+    for _ in range(count):
+        pick = cells[rng.integers(len(cells), size=(candidates, 2))]
+        far = np.hypot(*(pick[:, 0] - pick[:, 1]).T).argmax()
+        a, b = pick[far]
+        pairs.append(((int(a[0]), int(a[1])), (int(b[0]), int(b[1]))))
+    return pairs
 
 
-def best_of(fn: Callable[[], Any], repeat: int = 3) -> tuple[float, float, Any]:
-    """(first call s, best call s, last result)."""
-    times = []
+def best_of(fn: Callable[[], Any], repeat: int = 3) -> tuple[float, Any]:
+    """(best call s, last result)."""
+    best, out = math.inf, None
     for _ in range(repeat):
         start = time.perf_counter()
         out = fn()
-        times.append(time.perf_counter() - start)
-    return times[0], min(times), out
+        best = min(best, time.perf_counter() - start)
+    return best, out
+
+
+def walk_cost(cells: np.ndarray, res: float, extra: np.ndarray | None) -> float:
+    """Cost (m) of a cell path under our cost model (length times 1 + extra of the cell entered);
+    nan for an empty path."""
+    cells = np.asarray(cells, dtype=np.int64)
+    if len(cells) == 0:
+        return math.nan
+    step = np.diff(cells, axis=0)
+    length = np.where(np.all(step != 0, axis=1), math.sqrt(2.0), 1.0) * res
+    if extra is not None:
+        length *= 1.0 + extra[cells[1:, 0], cells[1:, 1]]
+    return float(length.sum())
+
+
+HEADER = (
+    f"{'map':<26}{'cost':<7}{'start -> goal':<27}{'method':<7}{'ours ms':>9}{'expanded':>10}"
+    f"{'cost m':>12}{'vs dijkstra':>13}{'pyastar ms':>11}{'ours/py':>9}{'py cost':>12}"
+    f"{'tcod ms':>9}{'tcod cost':>12}"
+)
+
+
+class Table:
+    """Runs the queries of one grid and prints one row each; keeps the times for the summary."""
+
+    def __init__(self) -> None:
+        self.rows: list[dict[str, Any]] = []
+
+    def grid(
+        self,
+        name: str,
+        label: str,
+        blocked: np.ndarray,
+        pairs: list[tuple[tuple[int, int], tuple[int, int]]],
+        res: float,
+        extra: np.ndarray | None,
+        reference: bool,
+    ) -> None:
+        import pyastar2d
+        import tcod.path
+        from scipy.sparse.csgraph import dijkstra
+
+        from slamcli.planning.search import grid_graph, grid_search
+
+        factor = np.ones(blocked.shape) if extra is None else 1.0 + extra
+        weights = np.where(blocked, np.inf, factor).astype(np.float32)
+        tcod_cost = np.where(blocked, 0, np.rint(100 * factor)).astype(np.int32)
+        graph = grid_graph(blocked, res, extra) if reference else None
+        w = blocked.shape[1]
+        kind = "clear" if extra is not None else "unif"
+        for start, goal in pairs:
+            ours_s, found = best_of(
+                lambda s=start, g=goal: grid_search(
+                    blocked, s, g, resolution_m=res, extra_cost=extra
+                )
+            )
+            check = "-"
+            if graph is not None:
+                dist = dijkstra(graph, indices=start[0] * w + start[1], limit=found.cost_m + 1e-3)
+                diff = abs(float(dist[goal[0] * w + goal[1]]) - found.cost_m)
+                check = f"{'ok' if diff <= AGREE_M else 'NO'} {diff:.0e}"
+            py_s, py_path = best_of(
+                lambda s=start, g=goal: pyastar2d.astar_path(weights, s, g, allow_diagonal=True)
+            )
+            tc_s, tc_path = best_of(
+                lambda s=start, g=goal: tcod.path.path2d(
+                    tcod_cost, start_points=[s], end_points=[g], cardinal=70, diagonal=99
+                )
+            )
+            py_cost = walk_cost(py_path if py_path is not None else [], res, extra)
+            tc_cost = walk_cost(tc_path, res, extra)
+            row = {"name": name, "map": label, "kind": kind, "ours": ours_s, "py": py_s}
+            self.rows.append({**row, "tcod": tc_s})
+            print(
+                f"{label:<26}{kind:<7}{f'{start}->{goal}':<27}{found.method:<7}"
+                f"{ours_s * 1000:>9.1f}{found.expanded:>10}{found.cost_m:>12.3f}{check:>13}"
+                f"{py_s * 1000:>11.1f}{ours_s / py_s:>9.2f}{py_cost:>12.3f}"
+                f"{tc_s * 1000:>9.1f}{tc_cost:>12.3f}",
+                flush=True,
+            )
+
+    def summary(self) -> None:
+        """Per map and cost mode: summed times and the ratio to pyastar2d."""
+        print()
+        print(
+            f"{'map':<26}{'cost':<7}{'queries':>8}{'ours ms':>10}{'pyastar ms':>12}"
+            f"{'tcod ms':>10}{'ours/py':>9}{'worst':>8}"
+        )
+        groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
+        for row in self.rows:
+            groups.setdefault((row["map"], row["kind"]), []).append(row)
+        for (label, kind), rows in groups.items():
+            ours = sum(r["ours"] for r in rows)
+            py = sum(r["py"] for r in rows)
+            tc = sum(r["tcod"] for r in rows)
+            worst = max(r["ours"] / r["py"] for r in rows)
+            print(
+                f"{label:<26}{kind:<7}{len(rows):>8}{ours * 1000:>10.1f}{py * 1000:>12.1f}"
+                f"{tc * 1000:>10.1f}{ours / py:>9.2f}{worst:>8.2f}"
+            )
+        building = [r for r in self.rows if r["name"] in BUILDINGS]
+        for kind in ("unif", "clear"):
+            rows = [r for r in building if r["kind"] == kind]
+            if rows:
+                ours = sum(r["ours"] for r in rows)
+                py = sum(r["py"] for r in rows)
+                verdict = "meets" if ours <= py else "MISSES"
+                print(
+                    f"building floors, {kind}: ours {ours * 1000:.1f} ms vs pyastar2d "
+                    f"{py * 1000:.1f} ms in total ({verdict} the goal ours <= pyastar2d)"
+                )
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("maps", nargs="?", type=Path, default=DEFAULT)
     parser.add_argument("--size", type=int, default=4000)
+    parser.add_argument("--pairs", type=int, default=4, help="random start/goal pairs per map")
+    parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--no-maze-reference", action="store_true")
+    parser.add_argument("--no-maze", action="store_true")
+    parser.add_argument("--no-startup", action="store_true")
     args = parser.parse_args()
 
-    import cv2
-    from scipy.sparse.csgraph import dijkstra
+    if not args.no_startup:
+        startup()
+        print()
 
-    from slamcli.planning.search import grid_graph, grid_search
+    from slamcli.planning.costmap import build_costmap
+    from slamcli.planning.planner import load_map
+    from slamcli.planning.search import grid_search
 
-    header = (
-        f"{'map':<28}{'start -> goal':<26}{'method':<7}{'ours ms':>9}{'1st ms':>9}"
-        f"{'expanded':>10}{'cost m':>12}{'dijkstra ms':>13}{'dij reached':>12}{'agree':>7}"
+    # This process's own numba cost, then every row below is compiled code.
+    t0 = time.perf_counter()
+    import numba  # noqa: F401
+
+    t1 = time.perf_counter()
+    tiny = np.zeros((8, 8), dtype=bool)
+    grid_search(tiny, (0, 0), (7, 7))
+    grid_search(tiny, (0, 0), (7, 7), extra_cost=np.zeros((8, 8)))
+    t2 = time.perf_counter()
+    print(
+        f"this process: import numba {(t1 - t0) * 1000:.0f} ms, first calls (load cached "
+        f"kernels) {(t2 - t1) * 1000:.0f} ms"
     )
-    worst = dict.fromkeys(GOALS_S, 0.0)
+    print(HEADER)
+    table = Table()
+    for name in MAPS:
+        yaml_path = args.maps / f"{name}.yaml"
+        if not yaml_path.exists():
+            print(f"{name}: {yaml_path} not found, skipped")
+            continue
+        grid, _ = load_map(yaml_path)
+        costmap = build_costmap(grid, ROBOT_RADIUS_M, clearance_weight=1.0)
+        blocked = costmap.blocked
+        pairs = far_pairs(blocked, args.pairs, args.seed)
+        res = costmap.resolution_m
+        h, w = blocked.shape
+        label = f"{name} {h}x{w}"
+        table.grid(name, label, blocked, pairs, res, None, reference=True)
+        table.grid(name, label, blocked, pairs, res, costmap.extra_cost, reference=True)
 
-    def run(label: str, kind: str, blocked, pairs, res, extra, graph_s, graph) -> None:
-        w = blocked.shape[1]
-        for start, goal in pairs:
-            first, best, found = best_of(
-                lambda s=start, g=goal: grid_search(
-                    blocked, s, g, resolution_m=res, extra_cost=extra
-                )
-            )
-            worst[kind] = max(worst[kind], best)
-            ref_ms, settled, agree = "-", "-", "-"
-            if graph is not None:
-                t0 = time.perf_counter()
-                dist = dijkstra(
-                    graph, indices=start[0] * w + start[1], limit=found.cost_m * (1 + 1e-9)
-                )
-                ref_ms = f"{(time.perf_counter() - t0) * 1000:.1f}"
-                ref = dist[goal[0] * w + goal[1]]
-                settled = str(np.count_nonzero(np.isfinite(dist)))
-                agree = "yes" if abs(ref - found.cost_m) <= 1e-9 * max(1.0, ref) else "NO"
-            print(
-                f"{label:<28}{f'{start}->{goal}':<26}{found.method:<7}{best * 1000:>9.1f}"
-                f"{first * 1000:>9.1f}{found.expanded:>10}{found.cost_m:>12.3f}{ref_ms:>13}"
-                f"{settled:>12}{agree:>7}"
-            )
-        if graph is not None:
-            print(f"{'':<28}(grid_graph build for the reference: {graph_s * 1000:.0f} ms)")
-
-    print(header)
-    for path in sorted(args.maps.glob("*.pgm")):
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-        blocked = image < 250
-        res = 0.05
-        yaml_path = path.with_suffix(".yaml")
-        if yaml_path.exists():
-            import yaml
-
-            res = float(yaml.safe_load(yaml_path.read_text())["resolution"])
-        pairs = far_pairs(blocked)
-        t0 = time.perf_counter()
-        graph = grid_graph(blocked, res)
-        graph_s = time.perf_counter() - t0
-        run(path.name, "map", blocked, pairs, res, None, graph_s, graph)
-        # A* with a clearance-style cost: up to 3x extra within 10 cells of an obstacle.
-        clearance = cv2.distanceTransform((~blocked).astype(np.uint8), cv2.DIST_L2, 5)
-        extra = 3.0 * np.clip(1.0 - clearance / 10.0, 0.0, 1.0)
-        t0 = time.perf_counter()
-        graph = grid_graph(blocked, res, extra)
-        graph_s = time.perf_counter() - t0
-        run(path.name + " +extra", "map +extra", blocked, pairs[:2], res, extra, graph_s, graph)
-
-    for corridor, wall in ((8, 2), (36, 4)):
-        t0 = time.perf_counter()
-        blocked, start, goal = maze(args.size, corridor, wall)
-        label = f"maze {args.size} c{corridor}w{wall}"
-        print(
-            f"{label}: {np.count_nonzero(~blocked)} free cells, generated in "
-            f"{time.perf_counter() - t0:.1f} s"
-        )
-        graph, graph_s = None, 0.0
-        if not args.no_maze_reference:
+    if not args.no_maze:
+        for corridor, wall in ((8, 2), (36, 4)):
             t0 = time.perf_counter()
-            graph = grid_graph(blocked)
-            graph_s = time.perf_counter() - t0
-        run(label, "maze", blocked, [(start, goal)], 1.0, None, graph_s, graph)
-        del graph
-
-    for kind, goal in GOALS_S.items():
-        verdict = "meets" if worst[kind] <= goal else "MISSES"
-        print(f"slowest {kind} query: {worst[kind] * 1000:.1f} ms ({verdict} the goal <= {goal} s)")
+            blocked, start, goal = maze(args.size, corridor, wall)
+            label = f"maze {args.size} c{corridor}w{wall}"
+            print(
+                f"{label}: {np.count_nonzero(~blocked)} free cells, generated in "
+                f"{time.perf_counter() - t0:.1f} s"
+            )
+            pairs = [(start, goal), *far_pairs(blocked, 2, args.seed)]
+            table.grid(
+                "maze", label, blocked, pairs, 1.0, None, reference=not args.no_maze_reference
+            )
+    table.summary()
 
 
 if __name__ == "__main__":

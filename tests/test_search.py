@@ -1,4 +1,9 @@
-"""Exact grid search: JPS and A* against an independent Dijkstra over the same graph."""
+"""Exact grid search: JPS, A* and the distance field against scipy's Dijkstra on the same graph.
+
+The reference is :func:`scipy.sparse.csgraph.dijkstra` over :func:`grid_graph` (built with
+numpy, independent of the compiled search), on random grids, the Nav2 maps and the shared
+building floors (inflated for a 0.2 m robot, uniform cost and with the clearance cost).
+"""
 
 from __future__ import annotations
 
@@ -15,7 +20,9 @@ from scipy.ndimage import label
 from scipy.sparse.csgraph import dijkstra
 
 from slamcli.errors import ConfigError, MapError, NoPathError
-from slamcli.planning.search import SearchResult, grid_graph, grid_search
+from slamcli.planning.costmap import build_costmap
+from slamcli.planning.planner import load_map
+from slamcli.planning.search import SearchResult, grid_distances, grid_graph, grid_search
 
 
 def _walk_cost(
@@ -231,3 +238,142 @@ def test_nav2_maps_match_dijkstra(name: str) -> None:
             found = grid_search(blocked, start, goal, resolution_m=0.05, method=method)
             _check(found, blocked, start, goal, reference, 0.05)
         assert grid_search(blocked, start, goal, resolution_m=0.05).method == "jps"
+
+
+def _largest_region(blocked: np.ndarray) -> np.ndarray:
+    """(N, 2) cells of the largest 4-connected free region."""
+    labels, _ = label(~blocked)
+    return np.argwhere(labels == np.bincount(labels.ravel())[1:].argmax() + 1)
+
+
+def _distances_to(
+    blocked: np.ndarray, goal: tuple[int, int], res: float, extra: np.ndarray | None
+) -> np.ndarray:
+    """scipy's Dijkstra over the reversed graph: (H, W) cost from every cell to ``goal``."""
+    w = blocked.shape[1]
+    reverse = grid_graph(blocked, res, extra).T.tocsr()
+    return dijkstra(reverse, indices=goal[0] * w + goal[1]).reshape(blocked.shape)
+
+
+@pytest.mark.parametrize("name", ["stata_basement", "building_31"])
+def test_building_floors_match_dijkstra(name: str) -> None:
+    grid, _ = load_map(shared_path("maps", f"{name}.yaml"))
+    costmap = build_costmap(grid, 0.2, clearance_weight=1.0)
+    blocked, res = costmap.blocked, costmap.resolution_m
+    assert costmap.extra_cost is not None and costmap.extra_cost.max() > 0.5
+    cells = _largest_region(blocked)
+    rng = np.random.default_rng(7)
+    goal = tuple(int(v) for v in cells[rng.integers(len(cells))])
+    # Starts: of 64 random cells each time, the farthest from the goal.
+    starts = []
+    for _ in range(3):
+        pick = cells[rng.integers(len(cells), size=64)]
+        far = pick[np.hypot(*(pick - goal).T).argmax()]
+        starts.append((int(far[0]), int(far[1])))
+    for extra in (None, costmap.extra_cost):
+        reference = _distances_to(blocked, goal, res, extra)
+        field = grid_distances(blocked, goal, resolution_m=res, extra_cost=extra)
+        assert np.array_equal(np.isinf(field), np.isinf(reference))
+        finite = np.isfinite(reference)
+        assert np.abs(field[finite] - reference[finite]).max() < 1e-6
+        methods = ("jps", "astar") if extra is None else ("astar",)
+        for start in starts:
+            assert reference[start] > 20.0  # metres: the pairs are far apart
+            for method in methods:
+                found = grid_search(
+                    blocked, start, goal, resolution_m=res, extra_cost=extra, method=method
+                )
+                assert found.method == method
+                assert tuple(found.cells[0]) == start and tuple(found.cells[-1]) == goal
+                assert found.cost_m == pytest.approx(reference[start], abs=1e-6, rel=0)
+                walked = _walk_cost(blocked, found.cells, res, extra)
+                assert walked == pytest.approx(found.cost_m, abs=1e-6, rel=0)
+
+
+def test_distances_match_dijkstra_on_random_grids() -> None:
+    rng = np.random.default_rng(99)
+    checked = 0
+    for _ in range(60):
+        h, w = (int(v) for v in rng.integers(3, 41, size=2))
+        blocked = _random_grid(rng, h, w)
+        free = np.argwhere(~blocked)
+        if len(free) == 0:
+            continue
+        res = float(rng.choice([1.0, 0.05]))
+        extra = rng.random((h, w)) * 3.0 if rng.random() < 0.5 else None
+        goal = tuple(int(v) for v in free[rng.integers(len(free))])
+        field = grid_distances(blocked, goal, resolution_m=res, extra_cost=extra)
+        reference = _distances_to(blocked, goal, res, extra)
+        assert field.shape == blocked.shape and field.dtype == np.float64
+        assert field[goal] == 0.0
+        assert np.all(np.isinf(field[blocked]))
+        assert np.array_equal(np.isinf(field), np.isinf(reference))
+        finite = np.isfinite(reference)
+        np.testing.assert_allclose(field[finite], reference[finite], rtol=0, atol=1e-9)
+        # The field is the cost of a search ending at the goal, from any reachable cell.
+        for cell in free[rng.integers(len(free), size=3)]:
+            cell = (int(cell[0]), int(cell[1]))
+            if np.isfinite(field[cell]):
+                found = grid_search(blocked, cell, goal, resolution_m=res, extra_cost=extra)
+                assert found.cost_m == pytest.approx(field[cell], abs=1e-9, rel=0)
+                checked += 1
+    assert checked > 100
+
+
+def test_distances_measure_paths_to_the_goal() -> None:
+    # Extra cost is paid on the cells entered, so the field is not symmetric.
+    blocked = np.zeros((1, 3), dtype=bool)
+    extra = np.array([[5.0, 1.0, 0.5]])
+    to_east = grid_distances(blocked, (0, 2), resolution_m=0.5, extra_cost=extra)
+    np.testing.assert_allclose(to_east[0], [0.5 * 2.0 + 0.5 * 1.5, 0.5 * 1.5, 0.0])
+    to_west = grid_distances(blocked, (0, 0), resolution_m=0.5, extra_cost=extra)
+    np.testing.assert_allclose(to_west[0], [0.0, 0.5 * 6.0, 0.5 * 2.0 + 0.5 * 6.0])
+    # Blocked cells and cells cut off from the goal are inf; a diagonal may not squeeze
+    # between two blocked cells.
+    two = np.array([[False, True], [True, False]])
+    field = grid_distances(two, (0, 0))
+    assert field[0, 0] == 0.0 and np.all(np.isinf(field.ravel()[1:]))
+    one = np.array([[False, True], [False, False]])
+    np.testing.assert_allclose(grid_distances(one, (0, 0)), [[0.0, np.inf], [1.0, math.sqrt(2.0)]])
+
+
+def test_distances_bad_queries_raise_map_error() -> None:
+    blocked = np.zeros((5, 6), dtype=bool)
+    blocked[2, 3] = True
+    with pytest.raises(MapError, match=r"goal cell \(5, 0\) is outside the 5x6 grid"):
+        grid_distances(blocked, (5, 0))
+    with pytest.raises(MapError, match=r"goal cell \(2, 3\) is blocked"):
+        grid_distances(blocked, (2, 3))
+    with pytest.raises(MapError, match="extra_cost must be finite"):
+        grid_distances(blocked, (0, 0), extra_cost=np.full((5, 6), np.nan))
+    with pytest.raises(MapError, match="resolution_m"):
+        grid_distances(blocked, (0, 0), resolution_m=0.0)
+
+
+def test_deterministic_on_a_building_floor() -> None:
+    grid, _ = load_map(shared_path("maps", "building_31.yaml"))
+    costmap = build_costmap(grid, 0.2, clearance_weight=1.0)
+    cells = _largest_region(costmap.blocked)
+    start, goal = tuple(cells[0]), tuple(cells[-1])
+    res = costmap.resolution_m
+    for extra, method in ((None, "jps"), (None, "astar"), (costmap.extra_cost, "astar")):
+        runs = [
+            grid_search(
+                costmap.blocked.copy(),
+                start,
+                goal,
+                resolution_m=res,
+                extra_cost=extra,
+                method=method,
+            )
+            for _ in range(2)
+        ]
+        assert np.array_equal(runs[0].cells, runs[1].cells)
+        assert (runs[0].cost_m, runs[0].expanded, runs[0].reached) == (
+            runs[1].cost_m,
+            runs[1].expanded,
+            runs[1].reached,
+        )
+    a = grid_distances(costmap.blocked, goal, resolution_m=res, extra_cost=costmap.extra_cost)
+    b = grid_distances(costmap.blocked, goal, resolution_m=res, extra_cost=costmap.extra_cost)
+    assert np.array_equal(a, b)

@@ -1,4 +1,4 @@
-"""Exact shortest paths on an 8-connected occupancy grid: jump point search and A*.
+"""Exact shortest paths on an 8-connected occupancy grid: jump point search, A* and Dijkstra.
 
 The graph
 ---------
@@ -15,10 +15,18 @@ its 8 neighbours:
   heuristic.
 
 A legal diagonal move always has an unblocked orthogonal cell beside it, so two cells are
-connected in this graph exactly when they are 4-connected through unblocked cells.
+connected in this graph exactly when they are 4-connected through unblocked cells. The graph is
+symmetric for uniform cost only: with ``extra_cost`` a move and its reverse are priced by
+different cells.
 
 Methods
 -------
+The searches are compiled with numba (:mod:`slamcli.planning._search_kernels`, imported on the
+first search, so importing this module stays cheap; the kernels are cached on disk, so only the
+first run after an install compiles them). They run on the bounding box of the free cells,
+padded with one blocked cell all around, and keep the open list in a binary heap indexed by
+cell, so a cheaper path to an open cell moves its entry up instead of adding a second one.
+
 ``"astar"``: A* over cells with the octile heuristic; any ``extra_cost``.
 
 ``"jps"`` (uniform cost only): jump point search (Harabor & Grastien 2011) with forced-neighbour
@@ -35,25 +43,31 @@ rules derived for this graph, which (unlike the usual JPS grid) may cut one bloc
 
 So every shortest path has an equally short one that moves diagonally first and turns only at
 jump points: cells with a forced neighbour, plus, on a diagonal, cells from which a straight
-component ray reaches a jump point. Straight jumps are O(1) lookups in JPS+ tables built with
-vectorised numpy (per direction and cell: the next jump point or wall along the ray); diagonal
-jumps walk cell by cell, checking those tables, so the Python loop does constant work per
-diagonal step and per jump point. A jump also ends where it passes the goal (straight) or
-crosses its row or column (diagonal). Such extra nodes never remove a path, so the search stays
-exact; the tests compare it with Dijkstra on thousands of random grids.
+jump along one of its two components stops. Jumps scan the grid cell by cell (compiled, so no
+jump tables are built per query) and also stop at the goal. The tests compare both methods with
+scipy's Dijkstra on thousands of random grids, the Nav2 maps and the shared building floors.
 
-``"auto"``: ``"jps"`` when ``extra_cost`` is None, else ``"astar"``.
+``"auto"``: ``"jps"`` when ``extra_cost`` is None, else ``"astar"`` (JPS needs uniform cost).
+Chosen by measurement (``benchmarks/bench_plan.py``): on the building floors JPS answers far
+queries in about 1-3 ms where A* settles 10^5 cells in 10-30 ms.
 
 Ties in f are broken towards the larger g, then the smaller cell index: the result is
 deterministic.
+
+Distance fields
+---------------
+:func:`grid_distances` is Dijkstra from the goal over the reversed graph: the cost of the
+cheapest path FROM every cell TO the goal, extra cost charged on the cells entered along that
+path (the goal's own included, the starting cell's not). It is an exact heuristic for searches
+that end at that goal.
 """
 
 from __future__ import annotations
 
-import heapq
+import functools
 import math
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -63,12 +77,13 @@ from slamcli.errors import ConfigError, MapError, NoPathError
 if TYPE_CHECKING:
     from scipy.sparse import csr_matrix
 
-__all__ = ["SearchResult", "grid_graph", "grid_search"]
+__all__ = ["SearchResult", "grid_distances", "grid_graph", "grid_search"]
 
 _SQRT2 = math.sqrt(2.0)
 # Directions clockwise from north as (drow, dcol); even = straight, odd = diagonal.
 _DIRS = ((-1, 0), (-1, 1), (0, 1), (1, 1), (1, 0), (1, -1), (0, -1), (-1, -1))
 _START = 8  # pseudo-direction of the start node: every legal move is a successor
+_METHODS = ("auto", "jps", "astar")
 
 
 @dataclass(frozen=True)
@@ -129,318 +144,101 @@ def _successor_table() -> list[list[tuple[int, ...]]]:
     return table
 
 
-_SUCC = _successor_table()
+@functools.cache
+def _successor_masks() -> NDArray[np.uint8]:
+    """(9, 256) uint8: the successor directions of :func:`_successor_table` as bit masks."""
+    table = np.zeros((_START + 1, 256), dtype=np.uint8)
+    for d, row in enumerate(_successor_table()):
+        for m, dirs in enumerate(row):
+            table[d, m] = sum(1 << k for k in dirs)
+    return table
 
 
-def _check(
-    blocked: NDArray[np.bool_],
-    start: tuple[int, int],
-    goal: tuple[int, int],
-    resolution_m: float,
-    extra_cost: NDArray[np.float64] | None,
-) -> tuple[NDArray[np.bool_], NDArray[np.float64] | None]:
+def _check_grid(blocked: NDArray[np.bool_], resolution_m: float) -> NDArray[np.bool_]:
     grid = np.asarray(blocked)
     if grid.ndim != 2 or grid.size == 0:
-        raise MapError(f"the occupancy grid must be a non-empty 2-D array, got shape {grid.shape}")
-    grid = grid.astype(bool, copy=False)
-    if not (math.isfinite(resolution_m) and resolution_m > 0):
-        raise MapError(f"resolution_m must be a positive number, got {resolution_m}")
-    h, w = grid.shape
-    for name, (r, c) in (("start", start), ("goal", goal)):
-        if not (0 <= r < h and 0 <= c < w):
-            raise MapError(f"{name} cell ({r}, {c}) is outside the {h}x{w} grid")
-        if grid[r, c]:
-            raise MapError(f"{name} cell ({r}, {c}) is blocked")
-    extra = None
-    if extra_cost is not None:
-        extra = np.asarray(extra_cost, dtype=np.float64)
-        if extra.shape != grid.shape:
-            raise MapError(f"extra_cost has shape {extra.shape}, the grid {grid.shape}")
-        if not np.all(np.isfinite(extra)) or np.any(extra < 0):
-            raise MapError("extra_cost must be finite and >= 0 everywhere")
-    return grid, extra
-
-
-def _neighbour_masks(free2d: NDArray[np.bool_]) -> NDArray[np.uint8]:
-    """(H+2, W+2) uint8: bit k set when the neighbour in direction k is free (0 on blocked)."""
-    hp, wp = free2d.shape
-    mask = np.zeros((hp, wp), dtype=np.uint8)
-    inner = mask[1:-1, 1:-1]
-    for k, (dr, dc) in enumerate(_DIRS):
-        nb = free2d[1 + dr : hp - 1 + dr, 1 + dc : wp - 1 + dc]
-        inner |= nb.view(np.uint8) << np.uint8(k)
-    mask[~free2d] = 0
-    return mask
-
-
-def _straight_events(free: NDArray[np.bool_], d: int) -> NDArray[np.bool_]:
-    """(H+2, W+2) bool: cells with a forced neighbour when entered by straight move d.
-
-    Entering x by move s, x+s+p (p perpendicular to s) is forced when x+p is blocked and x+s,
-    x+s+p are free, that is when x+p is a blocked cell whose neighbour along s is free.
-    """
-    hp, wp = free.shape
-    dr, dc = _DIRS[d]
-    pr, pc = dc, dr  # a perpendicular direction
-
-    def shifted(arr: NDArray[np.bool_], r: int, c: int) -> NDArray[np.bool_]:
-        return arr[1 + r : hp - 1 + r, 1 + c : wp - 1 + c]
-
-    inner = shifted(free, 0, 0)
-    ahead = shifted(free, dr, dc)
-    # Blocked cells whose neighbour along d is free; never true on the border (all blocked).
-    end = np.zeros((hp, wp), dtype=bool)
-    np.greater(ahead, inner, out=end[1:-1, 1:-1])
-    event = np.zeros((hp, wp), dtype=bool)
-    out = event[1:-1, 1:-1]
-    np.logical_or(shifted(end, pr, pc), shifted(end, -pr, -pc), out=out)
-    out &= inner
-    out &= ahead
-    return event
-
-
-_Ray = tuple[memoryview, int, int, int, int]
-
-
-def _straight_ray(free: NDArray[np.bool_], d: int) -> _Ray:
-    """The jump table (JPS+) of straight direction d over the padded grid.
-
-    Returns ``(codes, divisor, modulus, qsign, offset)``. ``codes[y]`` describes the first stop
-    at or after flat index y along d: ``2u + 1`` for a jump point, ``2u`` for a blocked cell, u
-    its position along the ray (column or row, counted in the scan direction). With
-    ``q = x // divisor % modulus`` (the column or row of x), the jump from x (looking up
-    ``codes[x + step]``) is ``k = (code >> 1) + qsign * q + offset`` steps to a jump point when
-    ``code & 1``, else ``k - 1`` free steps before the wall.
-    """
-    hp, wp = free.shape
-    dtype = np.int16 if 4 * max(hp, wp) + 8 < np.iinfo(np.int16).max else np.int32
-    event = _straight_events(free, d)
-    if d in (2, 6):
-        # E/W rays run along the flat row-major array (the blocked border ends them): the next
-        # stop for every cell is one np.repeat over the stop indices.
-        flat_event = event.ravel()
-        idx = np.flatnonzero(~free.ravel() | flat_event)
-        col = (idx % wp).astype(dtype)
-        if d == 2:
-            codes = 2 * col + flat_event[idx]
-            return np.repeat(codes, np.diff(idx, prepend=-1)).data, 1, wp, -1, 0
-        codes = 2 * (wp - 1 - col) + flat_event[idx]
-        return np.repeat(codes, np.diff(idx, append=free.size)).data, 1, wp, 1, 1 - wp
-    # N/S rays run along axis 0: a reverse running minimum, one numpy call per row, as numpy's
-    # own accumulate along axis 0 is far slower.
-    tab = np.empty((hp, wp), dtype=dtype)
-    np.multiply(free ^ event, 2 * hp + 2, out=tab, dtype=dtype)
-    tab += event
-    scan = tab if d == 4 else tab[::-1]
-    scan += (2 * np.arange(hp, dtype=dtype))[:, None]
-    for j in range(hp - 2, -1, -1):
-        np.minimum(scan[j], scan[j + 1], out=scan[j])
-    if d == 4:
-        return tab.ravel().data, wp, hp, -1, 0
-    return tab.ravel().data, wp, hp, 1, 1 - hp
-
-
-def _straight_rays(free: NDArray[np.bool_]) -> dict[int, _Ray]:
-    """The jump tables of N, E, S and W (see :func:`_straight_ray`)."""
-    return {d: _straight_ray(free, d) for d in (0, 2, 4, 6)}
-
-
-def _octile(dr: int, dc: int) -> float:
-    dr, dc = abs(dr), abs(dc)
-    return dr + dc + (_SQRT2 - 2.0) * (dr if dr < dc else dc)
-
-
-def _jps(
-    free: NDArray[np.bool_], s: tuple[int, int], t: tuple[int, int]
-) -> tuple[list[tuple[int, int]], int, int] | None:
-    """Jump point search on the padded grid; returns (jump nodes start..goal, expanded, reached)."""
-    wp = free.shape[1]
-    rays = _straight_rays(free)
-    fr = free.ravel().view(np.uint8).data
-    offs = [dr * wp + dc for dr, dc in _DIRS]
-    n_, ne, e_, se, s_, sw, w_, nw = offs
-    # Per direction: drow, dcol, step, length, then for straight moves the jump table and its
-    # decoding, for diagonal moves the tables of the two straight components.
-    moves: list[tuple[Any, ...]] = []
-    for d, (dr, dc) in enumerate(_DIRS):
-        if d % 2 == 0:
-            moves.append((dr, dc, offs[d], 1.0, *rays[d]))
-        else:
-            a, b = (d - 1) % 8, (d + 1) % 8
-            moves.append((dr, dc, offs[d], _SQRT2, offs[a], offs[b], rays[a][0], rays[b][0]))
-    succ = _SUCC
-    sr, sc = s[0] + 1, s[1] + 1
-    tr, tc = t[0] + 1, t[1] + 1
-    src, dst = sr * wp + sc, tr * wp + tc
-    inf = math.inf
-    g = {src: 0.0}
-    parent = {src: -1}
-    came = {src: _START}
-    closed: set[int] = set()
-    heap = [(_octile(tr - sr, tc - sc), 0.0, src)]
-    pop, push = heapq.heappop, heapq.heappush
-    expanded = 0
-    while heap:
-        _, _, x = pop(heap)
-        if x in closed:
-            continue
-        closed.add(x)
-        expanded += 1
-        if x == dst:
-            break
-        gx = g[x]
-        xr, xc = divmod(x, wp)
-        dgr, dgc = tr - xr, tc - xc
-        mask = (
-            fr[x + n_]
-            | fr[x + ne] << 1
-            | fr[x + e_] << 2
-            | fr[x + se] << 3
-            | fr[x + s_] << 4
-            | fr[x + sw] << 5
-            | fr[x + w_] << 6
-            | fr[x + nw] << 7
+        raise MapError(
+            f"the occupancy grid must be a non-empty 2-D array, got shape {grid.shape}",
+            hint="pass the (H, W) bool array of blocked cells",
         )
-        for d in succ[came[x]][mask]:
-            move = moves[d]
-            dr, dc, step, cost = move[0], move[1], move[2], move[3]
-            if d & 1:
-                # Walk the diagonal: it stops at a jump point (a forced neighbour, or a
-                # straight component ray reaching a jump point), at the row or column of the
-                # goal (the straight rays from there may reach it), or at a wall.
-                sa, sb, codes_a, codes_b = move[4], move[5], move[6], move[7]
-                ka, kb = dgr * dr, dgc * dc
-                k = (ka if ka < kb else kb) if ka > 0 and kb > 0 else 0
-                y = x
-                n = 0
-                while fr[y + step] and (fr[y + sa] or fr[y + sb]):
-                    y += step
-                    n += 1
-                    if (
-                        n == k
-                        or codes_a[y + sa] & 1
-                        or codes_b[y + sb] & 1
-                        or (fr[y + sa] and fr[y + sa - sb] and not fr[y - sb])
-                        or (fr[y + sb] and fr[y + sb - sa] and not fr[y - sa])
-                    ):
-                        break
-                else:
-                    continue
-            else:
-                codes, divisor, modulus, qsign, offset = move[4:]
-                code = codes[x + step]
-                n = (code >> 1) + qsign * (x // divisor % modulus) + offset
-                jump = n if code & 1 else 1 - n
-                # A goal on the ray ends the jump there.
-                k = (dgc * dc if dgr == 0 else 0) if dr == 0 else (dgr * dr if dgc == 0 else 0)
-                if k > 0 and (k <= jump if jump > 0 else k <= -jump):
-                    n = k
-                elif jump > 0:
-                    n = jump
-                else:
-                    continue
-                y = x + n * step
-            ng = gx + n * cost
-            if ng < g.get(y, inf) and y not in closed:
-                g[y] = ng
-                parent[y] = x
-                came[y] = d
-                push(heap, (ng + _octile(tr - xr - n * dr, tc - xc - n * dc), -ng, y))
-    if dst not in closed:
+    if not (math.isfinite(resolution_m) and resolution_m > 0):
+        raise MapError(
+            f"resolution_m must be a positive number, got {resolution_m}",
+            hint="pass the map's cell size in metres",
+        )
+    return grid.astype(bool, copy=False)
+
+
+def _check_cell(grid: NDArray[np.bool_], name: str, cell: tuple[int, int]) -> tuple[int, int]:
+    h, w = grid.shape
+    r, c = int(cell[0]), int(cell[1])
+    if not (0 <= r < h and 0 <= c < w):
+        raise MapError(
+            f"{name} cell ({r}, {c}) is outside the {h}x{w} grid",
+            hint=f"pick a {name} with 0 <= row < {h} and 0 <= col < {w}",
+        )
+    if grid[r, c]:
+        raise MapError(f"{name} cell ({r}, {c}) is blocked", hint=f"pick a {name} in a free cell")
+    return r, c
+
+
+def _check_extra(
+    grid: NDArray[np.bool_], extra_cost: NDArray[np.float64] | None
+) -> NDArray[np.float64] | None:
+    if extra_cost is None:
         return None
-    nodes = []
-    x = dst
-    while x != -1:
-        r, c = divmod(x, wp)
-        nodes.append((r - 1, c - 1))
-        x = parent[x]
-    return nodes[::-1], expanded, len(g)
+    extra = np.asarray(extra_cost, dtype=np.float64)
+    if extra.shape != grid.shape:
+        raise MapError(
+            f"extra_cost has shape {extra.shape}, the grid {grid.shape}",
+            hint="pass one extra cost per grid cell",
+        )
+    # min() is NaN when any value is: one comparison catches NaN and negatives.
+    lo, hi = float(extra.min()), float(extra.max())
+    if not (lo >= 0 and hi < math.inf):
+        raise MapError(
+            f"extra_cost must be finite and >= 0 everywhere, got values in [{lo}, {hi}]",
+            hint="clip the cost to [0, finite] and use blocked for impassable cells",
+        )
+    return extra
 
 
-def _astar(
-    mask: NDArray[np.uint8],
-    extra: NDArray[np.float64] | None,
-    s: tuple[int, int],
-    t: tuple[int, int],
-) -> tuple[list[tuple[int, int]], float, int, int] | None:
-    """A* over cells of the padded grid; returns (cells, cost in cells, expanded, reached)."""
-    hp, wp = mask.shape
-    masks = mask.ravel().data
-    factor = None
-    if extra is not None:
-        padded = np.zeros((hp, wp))
-        padded[1:-1, 1:-1] = extra
-        factor = (padded + 1.0).ravel().data
-    moves = [(dr, dc, dr * wp + dc, _SQRT2 if k % 2 else 1.0) for k, (dr, dc) in enumerate(_DIRS)]
-    succ = [[moves[k] for k in dirs] for dirs in _SUCC[_START]]
-    sr, sc = s[0] + 1, s[1] + 1
-    tr, tc = t[0] + 1, t[1] + 1
-    src, dst = sr * wp + sc, tr * wp + tc
-    inf = math.inf
-    g = [inf] * (hp * wp)
-    g[src] = 0.0
-    parent = {src: -1}
-    closed = bytearray(hp * wp)
-    heap = [(_octile(tr - sr, tc - sc), 0.0, src)]
-    pop, push = heapq.heappop, heapq.heappush
-    c2 = _SQRT2 - 2.0
-    expanded = 0
-    reached = 1
-    while heap:
-        _, _, x = pop(heap)
-        if closed[x]:
-            continue
-        closed[x] = 1
-        expanded += 1
-        if x == dst:
-            break
-        gx = g[x]
-        xr, xc = divmod(x, wp)
-        for dr, dc, step, length in succ[masks[x]]:
-            y = x + step
-            if closed[y]:
-                continue
-            ng = gx + (length if factor is None else length * factor[y])
-            gy = g[y]
-            if ng < gy:
-                if gy == inf:
-                    reached += 1
-                g[y] = ng
-                parent[y] = x
-                ar = tr - xr - dr
-                ar = ar if ar >= 0 else -ar
-                ac = tc - xc - dc
-                ac = ac if ac >= 0 else -ac
-                push(heap, (ng + ar + ac + c2 * (ar if ar < ac else ac), -ng, y))
-    if not closed[dst]:
-        return None
-    cells = []
-    x = dst
-    while x != -1:
-        r, c = divmod(x, wp)
-        cells.append((r - 1, c - 1))
-        x = parent[x]
-    return cells[::-1], g[dst], expanded, reached
+@dataclass(frozen=True)
+class _Padded:
+    """The bounding box of the free cells, padded with a blocked border, flattened.
+
+    ``free`` (Hp * Wp,) uint8, 1 on free cells; grid cell (r0, c0) is padded cell (1, 1).
+    """
+
+    free: NDArray[np.uint8]
+    shape: tuple[int, int]
+    r0: int
+    c0: int
+
+    @property
+    def wp(self) -> int:
+        return self.shape[1]
+
+    def index(self, cell: tuple[int, int]) -> int:
+        """The padded flat index of grid cell (row, col)."""
+        return (cell[0] - self.r0 + 1) * self.wp + cell[1] - self.c0 + 1
 
 
-def _expand(nodes: list[tuple[int, int]]) -> NDArray[np.int64]:
-    """Cells of the straight or diagonal segments joining consecutive jump nodes."""
-    pts = np.asarray(nodes, dtype=np.int64)
-    if len(pts) == 1:
-        return pts
-    delta = np.diff(pts, axis=0)
-    steps = np.abs(delta).max(axis=1)
-    unit = delta // steps[:, None]
-    seg = np.repeat(np.arange(len(steps)), steps)
-    k = np.arange(int(steps.sum())) - np.repeat(np.cumsum(steps) - steps, steps) + 1
-    return np.vstack([pts[:1], pts[seg] + unit[seg] * k[:, None]])
+def _pad(grid: NDArray[np.bool_]) -> _Padded:
+    """The padded box of the free cells of ``grid`` (which has at least one free cell)."""
+    rows = np.flatnonzero(~grid.all(axis=1))
+    cols = np.flatnonzero(~grid.all(axis=0))
+    r0, r1, c0, c1 = int(rows[0]), int(rows[-1]) + 1, int(cols[0]), int(cols[-1]) + 1
+    free = np.zeros((r1 - r0 + 2, c1 - c0 + 2), dtype=np.uint8)
+    np.logical_not(grid[r0:r1, c0:c1], out=free[1:-1, 1:-1].view(bool))
+    return _Padded(free.ravel(), free.shape, r0, c0)
 
 
-def _component_size(free: NDArray[np.bool_], start: tuple[int, int]) -> int:
-    from scipy import ndimage
-
-    labels, _ = ndimage.label(free)
-    return int(np.count_nonzero(labels == labels[start]))
+def _extra_arg(extra: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], bool]:
+    """The kernels' (extra cost array, weighted flag): a 1x1 placeholder when uniform."""
+    if extra is None:
+        return np.zeros((1, 1)), False
+    return np.ascontiguousarray(extra), True
 
 
 def grid_search(
@@ -456,48 +254,88 @@ def grid_search(
 
     ``blocked`` (H, W) bool; ``resolution_m`` metres per cell; ``extra_cost`` (H, W) float >= 0
     or None; ``method`` ``"auto"``, ``"jps"`` (uniform cost only) or ``"astar"``. Deterministic.
-    Raises :class:`MapError` when start or goal is outside the
-    grid or blocked, :class:`NoPathError` when the goal cannot be reached.
+    Raises :class:`MapError` when start or goal is outside the grid or blocked,
+    :class:`NoPathError` when the goal cannot be reached, :class:`ConfigError` for an unknown
+    method.
     """
-    grid, extra = _check(blocked, start, goal, resolution_m, extra_cost)
+    if method not in _METHODS:
+        raise ConfigError(
+            f"unknown search method {method!r}", hint=f"use one of {', '.join(_METHODS)}"
+        )
+    grid = _check_grid(blocked, resolution_m)
+    s = _check_cell(grid, "start", start)
+    t = _check_cell(grid, "goal", goal)
+    extra = _check_extra(grid, extra_cost)
     if method == "auto":
         method = "jps" if extra is None else "astar"
-    if method not in ("jps", "astar"):
-        raise ConfigError(f"unknown search method {method!r}", hint="use auto, jps or astar")
     if method == "jps" and extra is not None:
-        raise ConfigError("method 'jps' needs uniform costs (extra_cost=None)", hint="use astar")
-    s = (int(start[0]), int(start[1]))
-    t = (int(goal[0]), int(goal[1]))
+        raise ConfigError(
+            "method 'jps' needs uniform costs (extra_cost=None)",
+            hint="use method='astar' or 'auto' with an extra cost",
+        )
     if s == t:
         return SearchResult(np.array([s], dtype=np.int64), 0.0, 0, 1, method)
-    # Only the bounding box of the free cells matters; the padding blocks everything around it.
-    rows = np.flatnonzero(~grid.all(axis=1))
-    cols = np.flatnonzero(~grid.all(axis=0))
-    r0, c0 = int(rows[0]), int(cols[0])
-    box = (slice(r0, int(rows[-1]) + 1), slice(c0, int(cols[-1]) + 1))
-    free = np.zeros((box[0].stop - r0 + 2, box[1].stop - c0 + 2), dtype=bool)
-    free[1:-1, 1:-1] = ~grid[box]
-    sb, tb = (s[0] - r0, s[1] - c0), (t[0] - r0, t[1] - c0)
+    from slamcli.planning import _search_kernels as kernels
+
+    box = _pad(grid)
+    src, dst = box.index(s), box.index(t)
     if method == "jps":
-        found = _jps(free, sb, tb)
-        if found is not None:
-            nodes, expanded, reached = found
-            cells = _expand(nodes) + np.array([r0, c0], dtype=np.int64)
-            diag = np.count_nonzero(np.all(np.diff(cells, axis=0) != 0, axis=1))
-            cost = resolution_m * ((len(cells) - 1 - diag) + _SQRT2 * diag)
-            return SearchResult(cells, float(cost), expanded, reached, method)
+        cells, _, expanded, reached = kernels.jps(
+            box.free, _successor_masks(), box.wp, src, dst, box.r0, box.c0
+        )
+        # The cost from the path's moves, so it does not depend on the order of the jumps.
+        diag = np.count_nonzero(np.all(np.diff(cells, axis=0) != 0, axis=1))
+        cost = resolution_m * ((len(cells) - 1 - diag) + _SQRT2 * diag)
     else:
-        result = _astar(_neighbour_masks(free), None if extra is None else extra[box], sb, tb)
-        if result is not None:
-            path, cost_cells, expanded, reached = result
-            cells = np.asarray(path, dtype=np.int64) + np.array([r0, c0], dtype=np.int64)
-            return SearchResult(cells, resolution_m * cost_cells, expanded, reached, method)
-    n = _component_size(~grid, s)
+        cells, cost_cells, expanded, reached = kernels.astar(
+            box.free, *_extra_arg(extra), box.wp, src, dst, box.r0, box.c0
+        )
+        cost = resolution_m * cost_cells
+    if len(cells):
+        return SearchResult(cells, float(cost), int(expanded), int(reached), method)
+    n = _component_size(grid, s)
     raise NoPathError(
         f"no path from {s} to {t}: the goal is not connected to the start "
         f"({n} cells reached from the start)",
         hint="pick a goal in the same free region, or check the map's occupancy threshold",
     )
+
+
+def _component_size(grid: NDArray[np.bool_], cell: tuple[int, int]) -> int:
+    """Free cells connected to ``cell`` (4-connectivity, the same components as the graph)."""
+    from scipy import ndimage
+
+    labels, _ = ndimage.label(~grid)
+    return int(np.count_nonzero(labels == labels[cell]))
+
+
+def grid_distances(
+    blocked: NDArray[np.bool_],
+    goal: tuple[int, int],
+    *,
+    resolution_m: float = 1.0,
+    extra_cost: NDArray[np.float64] | None = None,
+) -> NDArray[np.float64]:
+    """(H, W) float64: the cost (m) of the cheapest path from each cell TO ``goal`` (row, col).
+
+    Same graph as :func:`grid_search` (see the module doc): with ``extra_cost`` a path pays
+    ``1 + extra_cost`` of every cell it enters, the goal included, so ``out[c]`` equals
+    ``grid_search(blocked, c, goal, ...).cost_m``. ``np.inf`` on blocked cells and on cells not
+    connected to the goal; 0 at the goal. Raises :class:`MapError` when the goal is outside
+    the grid or blocked, or ``extra_cost`` is malformed.
+    """
+    grid = _check_grid(blocked, resolution_m)
+    t = _check_cell(grid, "goal", goal)
+    extra = _check_extra(grid, extra_cost)
+    from slamcli.planning import _search_kernels as kernels
+
+    box = _pad(grid)
+    dist = kernels.dijkstra_to(box.free, *_extra_arg(extra), box.wp, box.index(t), box.r0, box.c0)
+    hp, wp = box.shape
+    out = np.full(grid.shape, np.inf)
+    inner = dist.reshape(hp, wp)[1:-1, 1:-1]
+    np.multiply(inner, resolution_m, out=out[box.r0 : box.r0 + hp - 2, box.c0 : box.c0 + wp - 2])
+    return out
 
 
 def grid_graph(
