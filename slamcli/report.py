@@ -544,34 +544,44 @@ def plot_multi_robot_run(path: str | Path, **kwargs: Any) -> Path:
 def plot_scan_run(path: str | Path, result: SlamResult, evaluation: PlanarEval | None) -> Path:
     """Write a PNG report of a lidar run (1400 x 700 pixels).
 
-    Left: the map (free white, occupied black, unknown grey) with the path and the loop
-    closures (edges between the poses they tie), and the ground truth moved onto the estimate
-    when there is an evaluation. Right, with an evaluation: the position error over time.
+    Left: the map (free white, occupied black, unknown grey; placed with its origin's yaw)
+    with the path and the loop closures (edges between the poses they tie), and the ground
+    truth moved onto the estimate when there is an evaluation. Right, with an evaluation: the
+    position error over time.
     """
     import numpy as np
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
 
     from slamcli.geometry.planar import se3_to_planar
+    from slamcli.planning.plot import draw_grid, grid_view, occupancy_colours
 
     assert result.trajectory is not None and result.grid is not None
     fig = Figure(figsize=(14, 7))
     FigureCanvasAgg(fig)
     top = fig.add_axes((0.05, 0.08, 0.5, 0.84))
     grid = result.grid
-    shade = np.where(np.isnan(grid.prob), 0.75, 1.0 - np.nan_to_num(grid.prob))
-    x0, y0 = grid.origin_xy_yaw[:2]
-    h, w = grid.prob.shape
-    extent = (x0, x0 + w * grid.resolution_m, y0, y0 + h * grid.resolution_m)
-    top.imshow(
-        shade, cmap="gray", vmin=0, vmax=1, origin="lower", extent=extent, interpolation="nearest"
-    )
     xy = se3_to_planar(result.trajectory.world_from_body)[:, :2]
+    moved = None
     if evaluation is not None:
         # The ground truth, moved onto the estimate by the inverse of the alignment.
-        gt = evaluation.gt[:, :2]
-        rot = evaluation.rotation
-        moved = (gt - evaluation.translation) @ rot
+        moved = (evaluation.gt[:, :2] - evaluation.translation) @ evaluation.rotation
+    # The axes show the map's area in the world and the paths; they are known before the map
+    # is drawn, so its image holds only what shows.
+    view = np.array(grid_view(grid)).reshape(2, 2)
+    paths = np.concatenate([view.T, xy] + ([] if moved is None else [moved[:, :2]]))
+    lo, hi = paths.min(axis=0), paths.max(axis=0)
+    limits = (float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1]))
+    draw_grid(
+        top,
+        grid,
+        lambda rows, cols: occupancy_colours(grid.prob, rows, cols, unknown_grey=0.75),
+        limits,
+        fig.get_figwidth() * fig.dpi * 0.5,
+    )
+    top.set_xlim(limits[0], limits[1])
+    top.set_ylim(limits[2], limits[3])
+    if moved is not None:
         top.plot(*_decimated(moved).T, color="tab:green", lw=1.0, label="ground truth")
     top.plot(*_decimated(xy).T, color="tab:blue", lw=1.0, label="estimate")
     if result.pose_graph is not None:

@@ -107,7 +107,7 @@ def test_occupied_threshold_and_unknown_cells() -> None:
     assert cm.occupied[1, 1] and not cm.occupied[1, 3]
     assert cm.blocked[3, 3] and not cm.occupied[3, 3]
     assert cm.blocked.sum() == 2
-    cm = build_costmap(_grid(prob), robot_radius_m=0.05, allow_unknown=True)
+    cm = build_costmap(_grid(prob), robot_radius_m=0.05, unknown_policy="free")
     # Unknown cells are free then, and never inflated.
     assert not cm.blocked[3, 3] and not cm.blocked[3, 4]
     assert cm.blocked[1, 2] and cm.blocked[0, 1]
@@ -330,7 +330,7 @@ def test_start_in_an_obstacle_or_the_inflated_zone_names_the_nearest_free_cell()
         assert ("--robot-radius" in (info.value.hint or "")) == (why != "is in an obstacle")
     with pytest.raises(MapError, match=r"goal .* is in unknown space") as info:
         plan(grid, (0.0, 1.8), (-9.0, -9.0))
-    assert "--allow-unknown" in (info.value.hint or "")
+    assert "--unknown free" in (info.value.hint or "")
     assert "--robot-radius" not in (info.value.hint or "")
 
 
@@ -348,8 +348,8 @@ def test_no_path_reports_the_cells_reached() -> None:
     prob[5, 10] = np.nan  # an unknown gap
     with pytest.raises(NoPathError, match="reached 200 cells") as info:
         plan(_grid(prob, 0.1), (0.25, 1.0), (2.5, 1.0), robot_radius_m=0.0)
-    assert "--allow-unknown" in (info.value.hint or "")
-    ok = plan(_grid(prob, 0.1), (0.25, 1.0), (2.5, 1.0), robot_radius_m=0.0, allow_unknown=True)
+    assert "--unknown free" in (info.value.hint or "")
+    ok = plan(_grid(prob, 0.1), (0.25, 1.0), (2.5, 1.0), robot_radius_m=0.0, unknown_policy="free")
     assert ok.tracking.reached_goal
 
 

@@ -142,7 +142,8 @@ def show(
         ),
     ],
 ) -> None:
-    """Print a map's size, resolution, origin and free / occupied / unknown cell counts.
+    """Print a map's size, resolution, origin (yaw included), the area it covers in the world
+    and its free / occupied / unknown cell counts.
 
     Examples:
 
@@ -154,19 +155,23 @@ def show(
 
 
 def describe_map(path: Path) -> dict[str, Any]:
-    """A map's file, size in cells, resolution (m), origin (x m, y m, yaw rad) and free /
-    occupied / unknown cell counts, JSON-able (``map show``, ``info``)."""
+    """A map's file, size in cells, resolution (m), origin (x m, y m, yaw rad), world extent
+    (``extent_m``: the x and y ranges in metres of its area, the yaw's rotation included) and
+    free / occupied / unknown cell counts, JSON-able (``map show``, ``info``)."""
     from slamcli.mapping import cell_counts
+    from slamcli.planning.costmap import map_bounds
     from slamcli.planning.planner import load_map
 
     grid, file = load_map(path)
     h, w = grid.prob.shape
+    xmin, xmax, ymin, ymax = map_bounds(grid)
     return {
         "file": str(file),
         "width": int(w),
         "height": int(h),
         "resolution_m": float(grid.resolution_m),
         "origin_xy_yaw": [float(v) for v in grid.origin_xy_yaw],
+        "extent_m": {"x": [xmin, xmax], "y": [ymin, ymax]},
         **{k: int(v) for k, v in cell_counts(grid).items()},
     }
 
@@ -175,11 +180,13 @@ def map_items(d: dict[str, Any]) -> dict[str, Any]:
     """:func:`describe_map`'s figures as the lines ``map show`` prints."""
     w, h, res = d["width"], d["height"], d["resolution_m"]
     x, y, yaw = d["origin_xy_yaw"]
+    (x0, x1), (y0, y1) = d["extent_m"]["x"], d["extent_m"]["y"]
     return {
         "file": d["file"],
         "size": f"{w} x {h} cells ({w * res:g} x {h * res:g} m)",
         "resolution": f"{res:g} m",
         "origin": f"({x:g}, {y:g}) m, yaw {yaw:g} rad",
+        "extent": f"x {x0:g} .. {x1:g} m, y {y0:g} .. {y1:g} m",
         "free": d["free"],
         "occupied": d["occupied"],
         "unknown": d["unknown"],

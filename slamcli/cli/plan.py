@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import time
+from enum import Enum
 from pathlib import Path
 from typing import Annotated, Any
 
@@ -12,15 +14,19 @@ from slamcli.cli import render
 from slamcli.cli.common import boundary
 from slamcli.errors import ConfigError
 
+_LOADED = time.perf_counter()
+"""When the CLI loaded this module: the command's start where the process's is not known."""
+
 PLAN_HELP = """Plan a path on an occupancy map, smooth it, time it and simulate a robot driving it.
 
 MAP is a map_server .yaml map, a slamcli .npz grid, or a run folder with map.yaml (written by \
 'slamcli map build'). Coordinates are metres in the map frame.
 
 [bold]Free space.[/] A cell is occupied when its probability is >= 0.65 (map_server's \
-occupied_thresh default); unknown cells are blocked unless --allow-unknown. A cell is blocked \
-when its centre lies within --robot-radius of an occupied cell's centre; a centre exactly at \
-the radius counts as blocked. The grid search is exact on the 8-connected free cells.
+occupied_thresh default); unknown cells are blocked (--unknown blocked, the default) or free \
+(--unknown free). A cell is blocked when its centre lies within --robot-radius of an occupied \
+cell's centre; a centre exactly at the radius counts as blocked. The grid search is exact on \
+the 8-connected free cells. The map's origin yaw is honoured.
 
 [bold]Clearance.[/] --clearance-weight w > 0 adds w * exp(-3/m * (d - radius)) per metre \
 driven through a cell d metres from the nearest obstacle (0 beyond 1 m), like Nav2's inflation \
@@ -36,7 +42,7 @@ x,y,radius,appear_s,vanish_s (vanish_s empty or inf: it stays). The robot replan
 appears on its path within 1.5 m ahead, and waits when no way leads around it.
 
 Writes into --out (default ./plan): path.csv, path_smooth.csv (x,y), trajectory.csv and \
-tracked.csv (t,x,y,theta,v,omega), plan.json and plan.png.
+tracked.csv (t,x,y,theta,v,omega), plan.json (with the time of each stage) and plan.png.
 
 Exit codes: 0 ok; 1 a bad map, start or goal outside the map or not in free space (the \
 message names the nearest free cell), no path (with the number of cells reached), a bad \
@@ -50,6 +56,13 @@ Examples:
 [bold]slamcli plan runs/landmarks --start -6,-5.9 --goal 4,5.9 --robot-radius 0.3 \
 --clearance-weight 1 --out runs/landmarks_plan[/] (after the 'slamcli run ekf' example)
 """
+
+
+class UnknownSpace(str, Enum):
+    """What unknown cells are to the robot."""
+
+    blocked = "blocked"
+    free = "free"
 
 
 def register(app: typer.Typer) -> None:
@@ -89,8 +102,16 @@ def plan(
     robot_radius: Annotated[
         float, typer.Option("--robot-radius", help="Robot radius (m) for the inflated zone.")
     ] = 0.2,
+    unknown: Annotated[
+        UnknownSpace | None,
+        typer.Option(
+            "--unknown",
+            help="Unknown cells are obstacles (blocked, the default) or free space (free).",
+            show_default=False,
+        ),
+    ] = None,
     allow_unknown: Annotated[
-        bool, typer.Option("--allow-unknown", help="Let the path cross unknown cells.")
+        bool, typer.Option("--allow-unknown", hidden=True, help="Deprecated: --unknown free.")
     ] = False,
     clearance_weight: Annotated[
         float,
@@ -116,35 +137,55 @@ def plan(
 ) -> None:
     """Plan a path on an occupancy map, smooth it, time it and simulate a robot driving it."""
     from slamcli.planning.obstacles import read_obstacles
-    from slamcli.planning.output import write_plan
+    from slamcli.planning.output import process_start, write_plan
     from slamcli.planning.planner import load_map
     from slamcli.planning.planner import plan as run_plan
     from slamcli.planning.trajectory import Limits
     from slamcli.rundir import RunDir
 
+    process = process_start()
+    started = _LOADED if process is None else process
     start_xy = parse_xy("--start", start)
     goal_xy = parse_xy("--goal", goal)
+    policy = unknown_policy(unknown, allow_unknown)
     limits = Limits(max_speed, max_yaw_rate, max_accel).checked()
     with RunDir(out, force=force) as run:
         dynamic = read_obstacles(obstacles) if obstacles is not None else []
+        t0 = time.perf_counter()
         grid, map_file = load_map(map)
+        read_ms = round((time.perf_counter() - t0) * 1000.0, 3)
         result = run_plan(
             grid,
             start_xy,
             goal_xy,
             robot_radius_m=robot_radius,
-            allow_unknown=allow_unknown,
+            unknown_policy=policy,
             clearance_weight=clearance_weight,
             limits=limits,
             obstacles=dynamic,
         )
-        written = write_plan(result, run, map_file)
+        written = write_plan(
+            result, run, map_file, timings_ms={"read_map": read_ms}, started=started
+        )
 
     rows = plan_summary(result, map_file, start_xy, goal_xy, len(dynamic))
     render.key_values("Plan", rows)
     render.written(written)
     if not result.tracking.reached_goal:
         render.warn("the simulated robot did not reach the goal within the time limit")
+
+
+def unknown_policy(unknown: UnknownSpace | None, allow_unknown: bool) -> str:
+    """The unknown-space policy from --unknown and the deprecated --allow-unknown."""
+    if not allow_unknown:
+        return (unknown or UnknownSpace.blocked).value
+    if unknown is UnknownSpace.blocked:
+        raise ConfigError(
+            "--allow-unknown contradicts --unknown blocked",
+            hint="pass only --unknown free or --unknown blocked",
+        )
+    render.warn("--allow-unknown is deprecated; use --unknown free")
+    return UnknownSpace.free.value
 
 
 def plan_summary(

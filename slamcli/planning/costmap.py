@@ -4,13 +4,14 @@ The rules, exactly:
 
 - A cell is **occupied** when its probability is at least :data:`OCCUPIED_THRESH` (0.65, the
   default ``occupied_thresh`` of ROS map_server). A NaN cell is **unknown**.
-- ``d`` is the distance (m) from a cell's centre to the centre of the nearest occupied cell
-  (``scipy.ndimage.distance_transform_edt`` with ``sampling=resolution``; ``inf`` when the map
-  has no occupied cell).
+- ``d`` is the distance (m) from a cell's centre to the centre of the nearest occupied cell,
+  ``sqrt((di * res)² + (dj * res)²)`` for the nearest one (row and column offsets ``di``,
+  ``dj``), ``inf`` when the map has no occupied cell.
 - A cell is **blocked** when it is occupied, when ``d <= robot_radius + TIE_TOL_M`` (so a centre
   lying exactly at the radius, up to floating-point rounding, is blocked and one just beyond it
-  is free), or when it is unknown and unknown space is not allowed. Unknown cells are blocked
-  themselves but not inflated.
+  is free), or when it is unknown and the unknown-space policy is ``"blocked"`` (the default;
+  ``"free"`` lets the robot cross unknown cells). Unknown cells are blocked themselves but not
+  inflated.
 - With a clearance weight ``w > 0`` a move into a free cell costs ``w * f(d)`` extra per metre
   moved, like Nav2's inflation layer: ``f(d) = exp(-k (d - robot_radius))`` for
   ``robot_radius < d <= inflation_radius`` and 0 beyond, with ``k`` =
@@ -18,12 +19,19 @@ The rules, exactly:
   :data:`INFLATION_RADIUS_M` (1 m) by default. ``w`` is dimensionless: with ``w = 1`` a metre
   driven right at the edge of the blocked zone costs two metres.
 
+The blocked cells come from a dilation of the occupied cells by the disc of the integer
+offsets ``(di, dj)`` that satisfy the radius rule (OpenCV's ``dilate``), so they follow the
+rule exactly without a distance transform. The distances themselves (an exact Euclidean
+distance transform, :attr:`Costmap.distance_m`) are computed only when something asks for
+them: the clearance cost, or a caller reading them.
+
 All positions are in the map's world frame (m); cell (row, col) covers the square whose
 lower-left corner lies at ``origin + (col, row) * resolution`` (rotated by the origin's yaw).
 """
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -45,6 +53,13 @@ COST_SCALING_PER_M = 3.0
 INFLATION_RADIUS_M = 1.0
 """Default distance from an obstacle beyond which the clearance cost is zero, metres."""
 
+DILATE_MAX_CELLS = 40
+"""Largest robot radius (in cells) :func:`inflate` dilates by; larger ones use a distance
+transform."""
+
+UNKNOWN_POLICIES = ("blocked", "free")
+"""What unknown cells are to the robot: ``"blocked"`` (the default) or ``"free"``."""
+
 
 @dataclass(frozen=True)
 class Costmap:
@@ -55,22 +70,19 @@ class Costmap:
         occupied: (H, W) bool, prob >= :data:`OCCUPIED_THRESH`.
         unknown: (H, W) bool, NaN cells.
         blocked: (H, W) bool, cells the robot's centre may not enter.
-        distance_m: (H, W) float64, distance from each cell centre to the nearest occupied cell
-            centre (m); ``inf`` everywhere when nothing is occupied.
         extra_cost: (H, W) float64 clearance cost per metre moved into each cell, or None when
             the clearance weight is 0.
         robot_radius_m: the radius used for ``blocked``.
-        allow_unknown: whether unknown cells are free.
+        unknown_policy: ``"blocked"`` or ``"free"`` (:data:`UNKNOWN_POLICIES`).
     """
 
     grid: OccupancyGrid
     occupied: NDArray[np.bool_]
     unknown: NDArray[np.bool_]
     blocked: NDArray[np.bool_]
-    distance_m: NDArray[np.float64]
     extra_cost: NDArray[np.float64] | None
     robot_radius_m: float
-    allow_unknown: bool
+    unknown_policy: str = "blocked"
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -80,6 +92,17 @@ class Costmap:
     @property
     def resolution_m(self) -> float:
         return float(self.grid.resolution_m)
+
+    @property
+    def allow_unknown(self) -> bool:
+        """Whether unknown cells are free (``unknown_policy == "free"``)."""
+        return self.unknown_policy == "free"
+
+    @functools.cached_property
+    def distance_m(self) -> NDArray[np.float64]:
+        """(H, W) float64 distance from each cell centre to the nearest occupied cell centre
+        (m); ``inf`` everywhere when nothing is occupied. Computed on first use."""
+        return occupied_distance_m(self.occupied, self.resolution_m)
 
 
 def check_nonnegative(name: str, value: float) -> float:
@@ -98,22 +121,32 @@ def check_positive(name: str, value: float) -> float:
     return v
 
 
+def check_unknown_policy(value: str) -> str:
+    """``value`` if it is one of :data:`UNKNOWN_POLICIES`, else ConfigError naming --unknown."""
+    if value not in UNKNOWN_POLICIES:
+        raise ConfigError(
+            f"--unknown: must be {' or '.join(UNKNOWN_POLICIES)}, got {value!r}",
+            hint="--unknown blocked keeps the robot out of unknown cells, --unknown free lets "
+            "it cross them",
+        )
+    return value
+
+
 def build_costmap(
     grid: OccupancyGrid,
     robot_radius_m: float = 0.2,
     *,
-    allow_unknown: bool = False,
+    unknown_policy: str = "blocked",
     clearance_weight: float = 0.0,
     cost_scaling_per_m: float = COST_SCALING_PER_M,
     inflation_radius_m: float = INFLATION_RADIUS_M,
 ) -> Costmap:
     """Blocked cells and clearance cost following the rules in the module docstring."""
-    from scipy.ndimage import distance_transform_edt
-
     radius = check_nonnegative("--robot-radius", robot_radius_m)
     weight = check_nonnegative("--clearance-weight", clearance_weight)
     k = check_nonnegative("cost_scaling_per_m", cost_scaling_per_m)
     inflation = check_nonnegative("inflation_radius_m", inflation_radius_m)
+    policy = check_unknown_policy(unknown_policy)
     prob = np.asarray(grid.prob)
     if prob.ndim != 2 or prob.size == 0:
         raise MapError(f"occupancy grid must be a non-empty (H, W) array, got shape {prob.shape}")
@@ -122,19 +155,15 @@ def build_costmap(
         raise MapError(f"map resolution must be > 0 m, got {grid.resolution_m!r}")
 
     unknown = np.isnan(prob)
-    occupied = np.zeros(prob.shape, dtype=bool)
-    np.greater_equal(prob, OCCUPIED_THRESH, out=occupied, where=~unknown)
-    if occupied.any():
-        # The transform measures the distance of every non-zero cell to the nearest zero one.
-        distance = np.asarray(distance_transform_edt(~occupied, sampling=res), dtype=np.float64)
-    else:
-        distance = np.full(prob.shape, np.inf)
-    blocked = occupied | (distance <= radius + TIE_TOL_M)
-    if not allow_unknown:
+    # NaN compares as False, so unknown cells are never occupied.
+    occupied = np.greater_equal(prob, OCCUPIED_THRESH)
+    blocked = inflate(occupied, res, radius)
+    if policy == "blocked":
         blocked |= unknown
 
     extra: NDArray[np.float64] | None = None
     if weight > 0:
+        distance = occupied_distance_m(occupied, res)
         with np.errstate(over="ignore"):
             f = np.exp(-k * np.maximum(distance - radius, 0.0))
         f[distance > inflation] = 0.0
@@ -145,11 +174,77 @@ def build_costmap(
         occupied=occupied,
         unknown=unknown,
         blocked=blocked,
-        distance_m=distance,
         extra_cost=extra,
         robot_radius_m=radius,
-        allow_unknown=allow_unknown,
+        unknown_policy=policy,
     )
+
+
+def disc_offsets(resolution_m: float, radius_m: float) -> NDArray[np.bool_]:
+    """(2K+1, 2K+1) bool: the offsets (di, dj) from the centre with
+    ``sqrt((di * res)² + (dj * res)²) <= radius_m + TIE_TOL_M`` (the blocking rule)."""
+    k = math.floor((radius_m + TIE_TOL_M) / resolution_m) + 1
+    off = np.arange(-k, k + 1, dtype=np.float64) * resolution_m
+    disc = np.sqrt(off[:, None] ** 2 + off[None, :] ** 2) <= radius_m + TIE_TOL_M
+    rows = np.flatnonzero(disc.any(axis=1))
+    half = k - int(rows[0])
+    return disc[k - half : k + half + 1, k - half : k + half + 1]
+
+
+def inflate(occupied: NDArray[np.bool_], resolution_m: float, radius_m: float) -> NDArray[np.bool_]:
+    """(H, W) bool: occupied cells and every cell whose centre lies within ``radius_m`` (m,
+    ties included, see :func:`disc_offsets`) of an occupied cell's centre.
+
+    A dilation by the disc of offsets; its cost grows with the disc's area, so beyond
+    :data:`DILATE_MAX_CELLS` cells of radius the distance transform (whose cost does not) is
+    used instead. Both follow the rule exactly.
+    """
+    import cv2
+
+    if not occupied.any():
+        return occupied.copy()
+    if radius_m / resolution_m > DILATE_MAX_CELLS:
+        return occupied | (occupied_distance_m(occupied, resolution_m) <= radius_m + TIE_TOL_M)
+    disc = disc_offsets(resolution_m, radius_m)
+    if disc.shape == (1, 1):
+        return occupied.copy()
+    h, w = occupied.shape
+    half = disc.shape[0] // 2
+    # Offsets beyond the map's size cannot join two of its cells.
+    hr, hc = min(half, h - 1), min(half, w - 1)
+    kernel = disc[half - hr : half + hr + 1, half - hc : half + hc + 1].astype(np.uint8)
+    src = np.ascontiguousarray(occupied).view(np.uint8)
+    out = cv2.dilate(src, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    return np.asarray(out).view(np.bool_)
+
+
+def occupied_distance_m(occupied: NDArray[np.bool_], resolution_m: float) -> NDArray[np.float64]:
+    """(H, W) float64 exact distance (m) from each cell centre to the nearest occupied cell
+    centre (scipy's Euclidean distance transform); ``inf`` everywhere when none is occupied."""
+    if not occupied.any():
+        return np.full(occupied.shape, np.inf)
+    from scipy.ndimage import distance_transform_edt
+
+    # The transform measures the distance of every non-zero cell to the nearest zero one.
+    return np.asarray(distance_transform_edt(~occupied, sampling=resolution_m), dtype=np.float64)
+
+
+def distance_at(costmap: Costmap, cell: tuple[int, int], within_m: float) -> float:
+    """Distance (m) from ``cell``'s centre to the nearest occupied cell centre, if one lies
+    within ``within_m``; else ``inf``. Looks only at a window around the cell, so it costs
+    nothing like a whole distance transform."""
+    res = costmap.resolution_m
+    k = math.floor(within_m / res) + 1
+    r, c = cell
+    h, w = costmap.shape
+    r0, c0 = max(r - k, 0), max(c - k, 0)
+    rows, cols = np.nonzero(costmap.occupied[r0 : min(r + k + 1, h), c0 : min(c + k + 1, w)])
+    if len(rows) == 0:
+        return math.inf
+    di = (rows + r0 - r).astype(np.float64) * res
+    dj = (cols + c0 - c).astype(np.float64) * res
+    d = float(np.sqrt(di**2 + dj**2).min())
+    return d if d <= within_m else math.inf
 
 
 def world_to_uv(grid: OccupancyGrid, xy: ArrayLike) -> NDArray[np.float64]:
@@ -187,27 +282,27 @@ def map_bounds(grid: OccupancyGrid) -> tuple[float, float, float, float]:
 
 
 def nearest_free_cell(blocked: NDArray[np.bool_], cell: tuple[int, int]) -> tuple[int, int] | None:
-    """The free cell nearest (Euclidean, in cells) to ``cell``; None when every cell is blocked."""
-    if blocked.all():
-        return None
-    from scipy.ndimage import distance_transform_edt
+    """The free cell nearest (Euclidean, in cells) to ``cell``; None when every cell is blocked.
 
+    Ties go to the smallest (row, col). Looks in a window around the cell that grows until the
+    answer inside it is certain, so a cell near free space costs microseconds on any map.
+    """
     r, c = cell
-    # A window around the cell is enough unless free space is far away; grow it until found.
     half = 16
     h, w = blocked.shape
     while True:
         r0, r1 = max(r - half, 0), min(r + half + 1, h)
         c0, c1 = max(c - half, 0), min(c + half + 1, w)
-        window = blocked[r0:r1, c0:c1]
         whole = r0 == 0 and c0 == 0 and r1 == h and c1 == w
-        if not window.all():
-            _, idx = distance_transform_edt(window, return_indices=True)
-            nr, nc = int(idx[0][r - r0, c - c0]), int(idx[1][r - r0, c - c0])
-            dist = math.hypot(nr + r0 - r, nc + c0 - c)
+        rows, cols = np.nonzero(~blocked[r0:r1, c0:c1])
+        if len(rows):
+            d2 = (rows + r0 - r) ** 2 + (cols + c0 - c) ** 2
+            k = int(np.argmin(d2))  # row-major order: the first of equals is the smallest
             # Inside the window the answer is exact only if no outside cell could be closer.
-            if whole or dist <= half:
-                return nr + r0, nc + c0
+            if whole or d2[k] <= half * half:
+                return int(rows[k]) + r0, int(cols[k]) + c0
+        elif whole:
+            return None
         half *= 2
 
 

@@ -26,10 +26,12 @@ from slamcli.planning.costmap import (
     COST_SCALING_PER_M,
     INFLATION_RADIUS_M,
     OCCUPIED_THRESH,
+    TIE_TOL_M,
     Costmap,
     build_costmap,
     check_positive,
     disc_mask,
+    distance_at,
     map_bounds,
     nearest_free_cell,
     uv_to_world,
@@ -71,7 +73,8 @@ class PlanResult:
         tracking: the simulated robot's run.
         obstacles: the dynamic obstacles simulated.
         plan_ms: wall time from map to trajectory (costmap, search, smoothing, speed profile).
-        timings_ms: wall time per stage.
+        timings_ms: wall time per stage, ms: ``costmap``, ``search``, ``smooth``,
+            ``trajectory``, ``simulate``, ``clearance``.
         settings: every parameter, for plan.json.
     """
 
@@ -128,7 +131,7 @@ def plan(
     goal_xy: tuple[float, float],
     *,
     robot_radius_m: float = 0.2,
-    allow_unknown: bool = False,
+    unknown_policy: str = "blocked",
     clearance_weight: float = 0.0,
     limits: Limits | None = None,
     obstacles: Sequence[DynamicObstacle] = (),
@@ -139,15 +142,12 @@ def plan(
 ) -> PlanResult:
     """Plan, smooth, time and track a path from ``start_xy`` to ``goal_xy`` (world, m).
 
+    ``unknown_policy`` is ``"blocked"`` (unknown cells are obstacles) or ``"free"``.
     Raises MapError when start or goal is outside the map or not in free space (the message
     names the nearest free cell), NoPathError when the goal cannot be reached (with the number
     of cells reachable from the start) or a dynamic obstacle that never vanishes blocks the
     only way, ConfigError for a bad setting.
     """
-    # Import the compiled libraries first, so plan_ms measures planning, not imports.
-    import scipy.ndimage
-    import scipy.spatial  # noqa: F401
-
     limits = (limits or Limits()).checked()
     check_positive("dt_s", dt_s)
     tracker = tracker or TrackerSettings()
@@ -156,7 +156,7 @@ def plan(
     costmap = build_costmap(
         grid,
         robot_radius_m,
-        allow_unknown=allow_unknown,
+        unknown_policy=unknown_policy,
         clearance_weight=clearance_weight,
         cost_scaling_per_m=cost_scaling_per_m,
         inflation_radius_m=inflation_radius_m,
@@ -202,7 +202,7 @@ def plan(
 
     settings = {
         "robot_radius_m": costmap.robot_radius_m,
-        "allow_unknown": allow_unknown,
+        "unknown": costmap.unknown_policy,
         "occupied_thresh": OCCUPIED_THRESH,
         "clearance_weight": float(clearance_weight),
         "cost_scaling_per_m": float(cost_scaling_per_m),
@@ -282,35 +282,78 @@ def smooth_path(
 
 
 def min_clearance(costmap: Costmap, path_xy: NDArray[np.float64]) -> float:
-    """Exact least distance (m) from a polyline to the centre of an occupied cell."""
-    from scipy.spatial import cKDTree
+    """Exact least distance (m) from a polyline (P, 2) (world, m) to the centre of an occupied
+    cell; ``inf`` when the map has none.
 
-    occ = np.argwhere(costmap.occupied)
-    if len(occ) == 0:
+    Only the occupied cells near the path are measured: those within ``r`` cells of it, with
+    ``r`` doubling from the robot radius plus two cells until the nearest of them lies within
+    ``r`` (no cell farther out can then be nearer).
+    """
+    occupied = costmap.occupied
+    if not occupied.any():
         return math.inf
-    centres = cell_centres(costmap.grid, occ)
-    tree = cKDTree(centres)
-    pts = np.asarray(path_xy, dtype=np.float64)
-    if len(pts) == 1:
-        return float(tree.query(pts[0])[0])
-    # Sample finely, then measure exactly against the few centres that could be nearer.
-    step = costmap.resolution_m / 4
-    seg_len = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    samples = [pts[-1:]]
-    for a, b, length in zip(pts[:-1], pts[1:], seg_len, strict=True):
-        n = max(1, math.ceil(length / step))
-        samples.append(a + (b - a) * (np.arange(n) / n)[:, None])
-    sampled = np.concatenate(samples)
-    d, _ = tree.query(sampled)
-    bound = float(d.min()) + step
-    near = sorted({i for group in tree.query_ball_point(sampled, bound) for i in group})
-    cand = centres[near]
-    a, b = pts[:-1], pts[1:]
+    grid = costmap.grid
+    res = costmap.resolution_m
+    pts = np.asarray(path_xy, dtype=np.float64).reshape(-1, 2)
+    samples = _every_cell(world_to_uv(grid, pts))
+    h, w = occupied.shape
+    r = costmap.robot_radius_m / res + 2.0
+    while True:
+        half = math.ceil(r) + 2
+        cells = _cells_near(occupied, samples, half)
+        best = _polyline_distance(cell_centres(grid, cells), pts) if len(cells) else math.inf
+        if best <= r * res or half >= max(h, w):
+            return best
+        r *= 2.0
+
+
+def _every_cell(uv: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Points along a polyline (P, 2) in grid coordinates at most one cell apart, ends
+    included."""
+    if len(uv) < 2:
+        return uv
+    d = np.diff(uv, axis=0)
+    n = np.maximum(np.ceil(np.sqrt((d**2).sum(axis=1))), 1).astype(np.int64)
+    seg = np.repeat(np.arange(len(d)), n)
+    t = (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)) / n[seg]
+    return np.concatenate((uv[seg] + t[:, None] * d[seg], uv[-1:]))
+
+
+def _cells_near(
+    mask: NDArray[np.bool_], samples_uv: NDArray[np.float64], half: int
+) -> NDArray[np.int64]:
+    """(K, 2) (row, col) of the set cells of ``mask`` within ``half`` cells (Chebyshev) of
+    the cell of any sample point."""
+    import cv2
+
+    h, w = mask.shape
+    rows = np.clip(np.floor(samples_uv[:, 1]).astype(np.int64), 0, h - 1)
+    cols = np.clip(np.floor(samples_uv[:, 0]).astype(np.int64), 0, w - 1)
+    r0, r1 = max(int(rows.min()) - half, 0), min(int(rows.max()) + half + 1, h)
+    c0, c1 = max(int(cols.min()) - half, 0), min(int(cols.max()) + half + 1, w)
+    seeds = np.zeros((r1 - r0, c1 - c0), dtype=np.uint8)
+    seeds[rows - r0, cols - c0] = 1
+    kernel = np.ones((2 * half + 1, 2 * half + 1), dtype=np.uint8)
+    near = cv2.dilate(seeds, kernel, borderType=cv2.BORDER_CONSTANT, borderValue=0)
+    found = np.argwhere(near.view(np.bool_) & mask[r0:r1, c0:c1])
+    return found + np.array([r0, c0])
+
+
+def _polyline_distance(points: NDArray[np.float64], poly: NDArray[np.float64]) -> float:
+    """Least distance from any of ``points`` (K, 2) to a polyline (P, 2), same units."""
+    if len(poly) == 1:
+        return float(np.linalg.norm(points - poly[0], axis=1).min())
+    a, b = poly[:-1], poly[1:]
     ab = b - a
     l2 = np.maximum((ab**2).sum(axis=1), 1e-300)
-    t = np.clip(((cand[:, None, :] - a[None]) * ab[None]).sum(axis=2) / l2[None], 0.0, 1.0)
-    foot = a[None] + t[..., None] * ab[None]
-    return float(np.linalg.norm(cand[:, None, :] - foot, axis=2).min())
+    best = math.inf
+    step = max(1, (1 << 20) // len(a))
+    for k in range(0, len(points), step):
+        cand = points[k : k + step]
+        t = np.clip(((cand[:, None, :] - a[None]) * ab[None]).sum(axis=2) / l2[None], 0.0, 1.0)
+        foot = a[None] + t[..., None] * ab[None]
+        best = min(best, float(np.linalg.norm(cand[:, None, :] - foot, axis=2).min()))
+    return best
 
 
 def _ms_since(t: float) -> float:
@@ -333,18 +376,22 @@ def _free_cell_at(costmap: Costmap, xy: tuple[float, float], name: str) -> tuple
         )
     if not costmap.blocked[cell]:
         return cell
-    # Only the remedies that can free this cell: a smaller radius frees only inflated cells.
+    # Only the remedies that can free this cell: a smaller radius frees only inflated cells,
+    # --unknown free only unknown ones.
+    radius = costmap.robot_radius_m
+    near = math.inf if costmap.occupied[cell] else distance_at(costmap, cell, radius + TIE_TOL_M)
     fixes = []
     if costmap.occupied[cell]:
         why = "is in an obstacle"
     elif costmap.unknown[cell] and not costmap.allow_unknown:
         why = "is in unknown space"
-        fixes.append("pass --allow-unknown")
+        both = " with a smaller --robot-radius" if math.isfinite(near) else ""
+        fixes.append(f"pass --unknown free{both}")
     else:
         fixes.append("lower --robot-radius")
         why = (
-            f"is within the robot radius ({costmap.robot_radius_m:g} m) of an obstacle "
-            f"({float(costmap.distance_m[cell]):.3f} m from the nearest occupied cell)"
+            f"is within the robot radius ({radius:g} m) of an obstacle "
+            f"({near:.3f} m from the nearest occupied cell)"
         )
     free = nearest_free_cell(costmap.blocked, cell)
     if free is None:
@@ -373,19 +420,28 @@ def _search(
             extra_cost=costmap.extra_cost,
         )
     except NoPathError:
-        from scipy.ndimage import label
-
-        # Cells connect exactly when they are 4-connected through free cells (see search.py).
-        labels, _ = label(~blocked)
-        reached = int(np.count_nonzero(labels == labels[start]))
+        reached = reachable_cells(blocked, start)
         hints = ["a smaller --robot-radius"] if costmap.robot_radius_m > 0 else []
         if not costmap.allow_unknown and costmap.unknown.any():
-            hints.insert(0, "--allow-unknown")
+            hints.insert(0, "--unknown free")
         raise NoPathError(
             f"no path from cell {start} to cell {goal}: the goal is not connected to the start; "
             f"the search reached {reached} cells from the start",
             hint=f"try {' or '.join([*hints, 'a goal in the same free region'])}",
         ) from None
+
+
+def reachable_cells(blocked: NDArray[np.bool_], cell: tuple[int, int]) -> int:
+    """How many free cells are 4-connected to ``cell`` through free cells (the cells the grid
+    search can reach: a legal diagonal move always has a free orthogonal cell beside it)."""
+    import cv2
+
+    h, w = blocked.shape
+    image = np.ascontiguousarray(blocked, dtype=np.uint8)
+    mask = np.zeros((h + 2, w + 2), dtype=np.uint8)
+    flags = 4 | cv2.FLOODFILL_MASK_ONLY | (1 << 8)
+    filled, *_ = cv2.floodFill(image, mask, (int(cell[1]), int(cell[0])), 1, 0, 0, flags)
+    return int(filled)
 
 
 def _replan(

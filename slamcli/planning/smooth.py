@@ -15,6 +15,8 @@ blocked cell.
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -24,33 +26,110 @@ _EPS = 1e-9
 _CORNER_OFFSET = 1e-6
 """How far (cells, along each axis) :func:`densify` moves a corner point into a free cell."""
 
+_SAMPLE_STEPS = (16.0, 2.0)
+"""Spacings (cells) of the points :meth:`SegmentChecker.maybe_free` looks up along a segment:
+a coarse pass rules out most blocked segments cheaply, a fine one most of the rest."""
+
+_SHORTCUT_STEPS = (32.0,)
+"""The first, coarse pass of :meth:`SegmentChecker.maybe_free` over all of :func:`shortcut`'s
+candidates."""
+
+_BATCH = 1 << 20
+"""Most sample points or touched cells held in memory at once."""
+
 
 class SegmentChecker:
     """Answers "does this segment touch a blocked cell?" for many segments at once.
 
-    ``blocked`` is (H, W) bool, row = v, column = u.
+    ``blocked`` is (H, W) bool, row = v, column = u. Nothing is precomputed: a check costs in
+    proportion to the cells the segments touch, and :meth:`maybe_free` rejects most blocked
+    segments for a fraction of that.
     """
 
     def __init__(self, blocked: NDArray[np.bool_]) -> None:
-        b = np.asarray(blocked, dtype=bool)
-        self.shape = b.shape
-        # cum[r, c] = blocked cells in rows < r of column c: one subtraction counts a run.
-        self._cum = np.zeros((b.shape[0] + 1, b.shape[1]), dtype=np.int32)
-        np.cumsum(b, axis=0, out=self._cum[1:])
+        self.blocked = np.asarray(blocked, dtype=bool)
+        self.shape = self.blocked.shape
 
     def free(self, p: ArrayLike, q: ArrayLike) -> NDArray[np.bool_]:
         """(M,) bool: segment p[i] -> q[i] ((M, 2) arrays of (u, v)) touches no blocked cell."""
         p = np.atleast_2d(np.asarray(p, dtype=np.float64))
         q = np.atleast_2d(np.asarray(q, dtype=np.float64))
+        ok = self.maybe_free(p, q)
+        todo = np.flatnonzero(ok)
+        for part in _batches(_strip_counts(p[todo], q[todo]), _BATCH):
+            idx = todo[part]
+            ok[idx] = self._exact_free(p[idx], q[idx])
+        return ok
+
+    def maybe_free(
+        self, p: ArrayLike, q: ArrayLike, steps: tuple[float, ...] = _SAMPLE_STEPS
+    ) -> NDArray[np.bool_]:
+        """(M,) bool, False for segments certainly not free: a point on them lies in a blocked
+        cell or off the map (points every ``steps[k]`` cells or less in pass k, both ends
+        included). True means "check exactly" (:meth:`free`)."""
+        p = np.atleast_2d(np.asarray(p, dtype=np.float64))
+        q = np.atleast_2d(np.asarray(q, dtype=np.float64))
+        ok = np.ones(len(p), dtype=bool)
+        for step in steps:
+            todo = np.flatnonzero(ok)
+            ok[todo] = self._samples_free(p[todo], q[todo], step)
+        return ok
+
+    def _samples_free(
+        self, p: NDArray[np.float64], q: NDArray[np.float64], step: float
+    ) -> NDArray[np.bool_]:
+        d = q - p
+        n = np.ceil(np.sqrt((d**2).sum(axis=1)) / step).astype(np.int64) + 1
+        ok = np.ones(len(p), dtype=bool)
+        h, w = self.shape
+        for part in _batches(n, _BATCH):
+            counts = n[part]
+            seg = np.repeat(part, counts)
+            k = np.arange(counts.sum()) - np.repeat(np.cumsum(counts) - counts, counts)
+            t = k / np.maximum(counts - 1, 1).repeat(counts)
+            col = np.floor(p[seg, 0] + t * d[seg, 0]).astype(np.int64)
+            row = np.floor(p[seg, 1] + t * d[seg, 1]).astype(np.int64)
+            inside = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+            hit = ~inside
+            hit[inside] = self.blocked[row[inside], col[inside]]
+            ok[seg[hit]] = False
+        return ok
+
+    def _exact_free(self, p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.bool_]:
         seg, col, vlo, vhi = _column_runs(p, q)
         h, w = self.shape
         r0 = np.ceil(vlo - _EPS).astype(np.int64) - 1
         r1 = np.floor(vhi + _EPS).astype(np.int64)
+        # A strip that leaves the map touches a blocked cell; the others are read cell by cell.
         outside = (col < 0) | (col >= w) | (r0 < 0) | (r1 >= h)
-        cc = np.clip(col, 0, w - 1)
-        count = self._cum[np.clip(r1, -1, h - 1) + 1, cc] - self._cum[np.clip(r0, 0, h), cc]
-        hit = outside | (count > 0)
-        return np.bincount(seg[hit], minlength=len(p)) == 0
+        hit = np.zeros(len(p), dtype=bool)
+        hit[seg[outside]] = True
+        keep = ~outside
+        seg, col, r0, r1 = seg[keep], col[keep], r0[keep], r1[keep]
+        n = r1 - r0 + 1
+        rows = np.repeat(r0, n) + (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))
+        blocked = self.blocked[rows, np.repeat(col, n)]
+        hit[np.repeat(seg, n)[blocked]] = True
+        return ~hit
+
+
+def _strip_counts(p: NDArray[np.float64], q: NDArray[np.float64]) -> NDArray[np.int64]:
+    """(M,) an upper bound of the cells each segment touches (for batching)."""
+    d = np.abs(q - p)
+    return (np.ceil(d[:, 0]) + np.ceil(d[:, 1])).astype(np.int64) * 2 + 4
+
+
+def _batches(sizes: NDArray[np.int64], limit: int) -> list[NDArray[np.int64]]:
+    """Consecutive index groups of ``sizes`` whose sums stay near ``limit`` (at least one
+    index per group)."""
+    if len(sizes) == 0:
+        return []
+    total = np.cumsum(sizes)
+    if total[-1] <= limit:
+        return [np.arange(len(sizes))]
+    cuts = np.searchsorted(total, np.arange(limit, total[-1], limit), side="right")
+    bounds = np.unique(np.concatenate(([0], cuts, [len(sizes)])))
+    return [np.arange(a, b) for a, b in itertools.pairwise(bounds) if b > a]
 
 
 def touched_cells(p: ArrayLike, q: ArrayLike) -> NDArray[np.int64]:
@@ -155,6 +234,10 @@ def shortcut(
     keeps its ends, every segment is free and it is never longer. With ``extra_cost`` (H, W)
     a jump must also cost no more than the stretch it replaces (:func:`segment_costs`), so
     shortcuts do not undo the clearance the search paid for.
+
+    The later points that a coarse :meth:`SegmentChecker.maybe_free` pass does not rule out
+    are checked exactly from the farthest back, a few at a time (more each round), so the
+    search stops at the answer.
     """
     if len(points) <= 2:
         return points.copy()
@@ -166,14 +249,23 @@ def shortcut(
     last = len(points) - 1
     while i < last:
         later = np.arange(i + 1, last + 1)
-        start = np.broadcast_to(points[i], (len(later), 2))
-        ok = checker.free(start, points[later])
-        if cum is not None and extra_cost is not None:
-            cand = np.flatnonzero(ok)
-            cost = segment_costs(start[cand], points[later[cand]], extra_cost)
-            ok[cand] = cost <= cum[later[cand]] - cum[i] + 1e-9 * (1.0 + cum[-1])
+        starts = np.broadcast_to(points[i], (len(later), 2))
+        maybe = later[checker.maybe_free(starts, points[later], steps=_SHORTCUT_STEPS)]
         # The next point always qualifies (its segment is free and priced like itself).
-        j = int(later[np.flatnonzero(ok)[-1]]) if ok.any() else i + 1
+        j = i + 1
+        hi, size = len(maybe), 8
+        while hi > 0:
+            cand = maybe[max(hi - size, 0) : hi]
+            start = np.broadcast_to(points[i], (len(cand), 2))
+            ok = checker.free(start, points[cand])
+            if cum is not None and extra_cost is not None:
+                good = np.flatnonzero(ok)
+                cost = segment_costs(start[good], points[cand[good]], extra_cost)
+                ok[good] = cost <= cum[cand[good]] - cum[i] + 1e-9 * (1.0 + cum[-1])
+            if ok.any():
+                j = int(cand[np.flatnonzero(ok)[-1]])
+                break
+            hi, size = hi - size, size * 2
         kept.append(j)
         i = j
     return points[kept]
