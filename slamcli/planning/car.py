@@ -1,0 +1,406 @@
+"""``plan_car()``: a car-like robot's path from a start pose to a goal pose.
+
+Steps, each timed in ``timings_ms``:
+
+1. **Free space.** Occupied cells, and unknown ones unless ``unknown="free"``, are blocked;
+   nothing is inflated: the footprint polygon itself is tested against the cells
+   (:mod:`slamcli.planning.footprint`).
+2. **Heuristic.** The exact grid distance to the goal (:func:`~slamcli.planning.search.
+   grid_distances`) over the cells the footprint's inscribed circle may enter.
+3. **Search.** Hybrid-A* (:mod:`slamcli.planning.hybrid_astar`) with Reeds-Shepp (or, without
+   reversing, Dubins) curves to the goal.
+4. **Smoothing.** Analytic shortcuts that keep the curvature within ``1 / min_turn_radius`` and
+   the clearance the search path had (up to :data:`SMOOTH_MARGIN_M`).
+5. **Check.** Every pose of the final path, sampled at most half a cell apart, is tested with
+   the exact footprint test; a failure is an internal error, never a silent result.
+6. **Timing and tracking.** A speed profile that stops at each gear change
+   (:mod:`slamcli.planning.car_motion`) and a simulated bicycle-model robot following it.
+
+Poses are ``(x, y, yaw)`` in the map's world frame (m, rad); the map's origin yaw is honoured.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from slamcli.errors import ConfigError, MapError, NoPathError
+from slamcli.planning.car_motion import (
+    CarLimits,
+    CarProfile,
+    simulate_bicycle,
+    time_parameterise_car,
+)
+from slamcli.planning.costmap import OCCUPIED_THRESH, nearest_free_cell, uv_to_world, world_to_uv
+from slamcli.planning.footprint import Footprint, FootprintChecker
+from slamcli.planning.tracker import TrackerSettings, TrackingResult
+from slamcli.types import OccupancyGrid
+
+SMOOTH_MARGIN_M = 0.10
+"""Shortcuts keep at least this clearance wherever the search path had it, metres."""
+
+N_HEADINGS = 72
+"""Heading bins of the lattice (5 degrees)."""
+
+
+@dataclass(frozen=True)
+class CarSettings:
+    """The car and the search.
+
+    Attributes:
+        footprint: the robot's outline in its body frame (x forward, y left), metres.
+        min_turn_radius_m: the tightest turn of the reference point, metres.
+        reverse: whether the robot may drive backwards (Reeds-Shepp) or not (Dubins).
+        unknown: ``"blocked"`` or ``"free"``: how unknown cells count.
+        bin_m: lattice bin size in metres; None = max(resolution, radius / 8).
+        step_m: primitive arc length; None = 1.5 bins.
+        n_steer: curvatures per gear.
+        reverse_weight: cost factor of reversing.
+        switch_penalty_m: cost of a gear change, metres.
+        max_expanded: expansion cap of the search.
+    """
+
+    footprint: Footprint
+    min_turn_radius_m: float = 1.2
+    reverse: bool = True
+    unknown: str = "blocked"
+    bin_m: float | None = None
+    step_m: float | None = None
+    n_steer: int = 5
+    reverse_weight: float = 1.0
+    switch_penalty_m: float = 1.0
+    max_expanded: int = 3_000_000
+
+    def checked(self) -> CarSettings:
+        if not (math.isfinite(self.min_turn_radius_m) and self.min_turn_radius_m > 0):
+            raise ConfigError(
+                f"--min-turn-radius must be a positive number of metres, got "
+                f"{self.min_turn_radius_m!r}",
+                hint="for example --min-turn-radius 1.2",
+            )
+        if self.unknown not in ("blocked", "free"):
+            raise ConfigError(
+                f"--unknown must be 'free' or 'blocked', got {self.unknown!r}",
+                hint="--unknown blocked keeps the robot in mapped free space",
+            )
+        return self
+
+
+@dataclass
+class CarPlanResult:
+    """Everything :func:`plan_car` produced; world frame, metres and radians.
+
+    Attributes:
+        start, goal: the poses asked for.
+        poses: (N, 3) ``x, y, yaw`` of the final path, at most half a cell apart.
+        direction: (N,) +1 forward / -1 reverse, the gear of the motion leaving each pose.
+        curvature: (N,) signed curvature (1/m) of the motion leaving each pose.
+        search_poses: (K, 3) the lattice nodes of the search path, before smoothing.
+        length_m, reversals, min_clearance_m, max_curvature: the path's figures.
+        profile, trajectory, tracking: the timed path, sampled every ``dt_s``, and the
+            simulated robot.
+        expanded: search nodes expanded.
+        timings_ms: per stage.
+    """
+
+    start: tuple[float, float, float]
+    goal: tuple[float, float, float]
+    grid: OccupancyGrid
+    blocked: NDArray[np.bool_]
+    settings: CarSettings
+    limits: CarLimits
+    poses: NDArray[np.float64]
+    direction: NDArray[np.int8]
+    curvature: NDArray[np.float64]
+    search_poses: NDArray[np.float64]
+    length_m: float
+    reversals: int
+    min_clearance_m: float
+    max_curvature: float
+    profile: CarProfile
+    trajectory: NDArray[np.float64]
+    tracking: TrackingResult
+    expanded: int
+    timings_ms: dict[str, float] = field(default_factory=dict)
+
+    @property
+    def goal_error(self) -> tuple[float, float]:
+        """(metres, radians) between the path's last pose and the goal."""
+        end = self.poses[-1]
+        d = math.hypot(end[0] - self.goal[0], end[1] - self.goal[1])
+        a = abs((end[2] - self.goal[2] + math.pi) % (2 * math.pi) - math.pi)
+        return d, a
+
+
+def _ms(t: float) -> float:
+    return round((time.perf_counter() - t) * 1000.0, 3)
+
+
+def car_blocked(grid: OccupancyGrid, unknown: str) -> NDArray[np.bool_]:
+    """(H, W) cells a car's footprint may not touch: occupied, and unknown unless ``free``."""
+    prob = np.asarray(grid.prob, dtype=np.float64)
+    nan = np.isnan(prob)
+    blocked = np.zeros(prob.shape, dtype=bool)
+    np.greater_equal(prob, OCCUPIED_THRESH, out=blocked, where=~nan)
+    if unknown == "blocked":
+        blocked |= nan
+    return blocked
+
+
+def _to_grid(grid: OccupancyGrid, pose: tuple[float, float, float]) -> tuple[float, float, float]:
+    u, v = world_to_uv(grid, pose[:2])
+    return float(u), float(v), float(pose[2]) - float(grid.origin_xy_yaw[2])
+
+
+def _check_pose(
+    grid: OccupancyGrid,
+    checker: FootprintChecker,
+    blocked: NDArray[np.bool_],
+    pose: tuple[float, float, float],
+    flag: str,
+    unknown: str,
+) -> None:
+    """MapError naming the nearest free cell when the footprint at ``pose`` touches a blocked
+    cell (or leaves the map)."""
+    if bool(checker.free(np.asarray([pose], dtype=np.float64))[0]):
+        return
+    h, w = blocked.shape
+    u, v = world_to_uv(grid, pose[:2])
+    cell = (min(max(int(v), 0), h - 1), min(max(int(u), 0), w - 1))
+    inside = 0 <= u < w and 0 <= v < h
+    # A cell whose centre is at least the circumradius from every blocked cell takes the
+    # footprint at any heading.
+    res = float(grid.resolution_m)
+    from scipy.ndimage import distance_transform_edt
+
+    room = distance_transform_edt(~blocked) * res
+    near = nearest_free_cell(room < checker.footprint.circumradius_m + res, cell)
+    where = "outside the map" if not inside else "touching an obstacle or unknown space"
+    hint = "choose a pose in open space"
+    if near is not None:
+        x, y = uv_to_world(grid, [near[1] + 0.5, near[0] + 0.5])
+        hint = f"move {flag} to ({x:.2f}, {y:.2f}), where the footprint fits at any heading"
+    if unknown == "blocked" and inside:
+        hint += ", or pass --unknown free if the footprint only overlaps unknown cells"
+    raise MapError(
+        f"{flag} ({pose[0]:g}, {pose[1]:g}, yaw {math.degrees(pose[2]):.1f} deg): the footprint "
+        f"is {where}",
+        hint=hint,
+    )
+
+
+def plan_car(
+    grid: OccupancyGrid,
+    start: tuple[float, float, float],
+    goal: tuple[float, float, float],
+    settings: CarSettings,
+    limits: CarLimits,
+    *,
+    dt_s: float = 0.1,
+    tracker: TrackerSettings | None = None,
+) -> CarPlanResult:
+    """Plan, smooth, check, time and track a car-like path (see the module doc).
+
+    Raises MapError when the footprint at the start or goal collides (naming a free place
+    nearby), NoPathError when no path exists (saying whether reversing would find one),
+    ConfigError for a bad setting.
+    """
+    from slamcli.planning.hybrid_astar import (
+        FOUND,
+        LIMIT,
+        lattice_search,
+        sample_pieces,
+        segment_curvatures,
+        shortcut_path,
+    )
+    from slamcli.planning.search import grid_distances
+
+    settings = settings.checked()
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    res = float(grid.resolution_m)
+    blocked = car_blocked(grid, settings.unknown)
+    checker = FootprintChecker(blocked, grid, settings.footprint)
+    margin_fp = settings.footprint.offset(SMOOTH_MARGIN_M)
+    checker_margin = FootprintChecker(blocked, grid, margin_fp, dist=checker.dist)
+    timings["costmap"] = _ms(t0)
+    _check_pose(grid, checker, blocked, start, "--start", settings.unknown)
+    _check_pose(grid, checker, blocked, goal, "--goal", settings.unknown)
+
+    t1 = time.perf_counter()
+    # Cells where the reference point collides at any heading (the inscribed circle meets a
+    # blocked cell wherever in the cell it lies) are out of the holonomic heuristic's grid.
+    inscribed = checker.dist + math.sqrt(2.0) < checker.r_in
+    gs = _to_grid(grid, goal)
+    ss = _to_grid(grid, start)
+    h, w = blocked.shape
+    goal_cell = (min(max(int(gs[1]), 0), h - 1), min(max(int(gs[0]), 0), w - 1))
+    holo = grid_distances(blocked | inscribed, goal_cell)
+    timings["heuristic"] = _ms(t1)
+
+    radius = settings.min_turn_radius_m / res
+    bin_m = settings.bin_m or max(res, settings.min_turn_radius_m / 8.0)
+    step_m = settings.step_m or 1.5 * bin_m
+    t2 = time.perf_counter()
+
+    def search(reverse: bool, cap: int) -> Any:
+        return lattice_search(
+            checker,
+            holo,
+            ss,
+            gs,
+            radius=radius,
+            step=step_m / res,
+            bin_size=bin_m / res,
+            n_steer=settings.n_steer,
+            n_headings=N_HEADINGS,
+            reverse=reverse,
+            reverse_weight=settings.reverse_weight,
+            switch_penalty=settings.switch_penalty_m / res,
+            max_expanded=cap,
+        )
+
+    found = search(settings.reverse, settings.max_expanded)
+    timings["search"] = _ms(t2)
+    if found.status != FOUND:
+        _no_path(found, settings, search, LIMIT, FOUND)
+
+    t3 = time.perf_counter()
+    nodes = np.vstack((found.nodes, np.asarray([gs])))
+    step = step_m / res
+    # Piece a reaches node a: a lattice primitive, or (the last) the analytic tail.
+    pieces: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = [(np.zeros(0), np.zeros(0))]
+    for a in range(1, len(found.nodes)):
+        pieces.append((np.array([found.curvature[a]]), np.array([found.direction[a] * step])))
+    pieces.append((segment_curvatures(found.tail_kinds, radius), found.tail_lengths))
+    piece_len = np.array([float(np.abs(ln).sum()) for _, ln in pieces])
+    piece_clear = np.ones(len(nodes), dtype=bool)
+    for a in range(1, len(nodes)):
+        p = sample_pieces(nodes[a - 1], *pieces[a], 0.5)[0]
+        piece_clear[a] = bool(checker_margin.free_uv(p).all()) if len(p) else True
+    keep = shortcut_path(
+        checker,
+        checker_margin,
+        nodes,
+        piece_len,
+        piece_clear,
+        radius=radius,
+        reverse=settings.reverse,
+    )
+    poses_g, gears, curv = _assemble(nodes, pieces, keep, radius, settings.reverse)
+    timings["smooth"] = _ms(t3)
+
+    t4 = time.perf_counter()
+    poses = np.empty_like(poses_g)
+    poses[:, :2] = uv_to_world(grid, poses_g[:, :2])
+    poses[:, 2] = np.angle(np.exp(1j * (poses_g[:, 2] + float(grid.origin_xy_yaw[2]))))
+    curvature = curv / res
+    free = checker.free(poses)
+    if not free.all():
+        bad = int(np.flatnonzero(~free)[0])
+        raise NoPathError(
+            f"internal check failed: pose {bad} of the path ({poses[bad, 0]:.3f}, "
+            f"{poses[bad, 1]:.3f}) touches a blocked cell",
+            hint="report this with the map and the command",
+        )
+    clearance = checker.clearance(poses)
+    timings["check"] = _ms(t4)
+
+    t5 = time.perf_counter()
+    profile = time_parameterise_car(poses, gears, curvature, limits)
+    trajectory = profile.sample_every(dt_s)
+    timings["trajectory"] = _ms(t5)
+    t6 = time.perf_counter()
+    tracking = simulate_bicycle(profile, limits, tracker or TrackerSettings())
+    timings["simulate"] = _ms(t6)
+    seg = np.diff(poses[:, :2], axis=0)
+    return CarPlanResult(
+        start=start,
+        goal=goal,
+        grid=grid,
+        blocked=blocked,
+        settings=settings,
+        limits=limits,
+        poses=poses,
+        direction=gears,
+        curvature=curvature,
+        search_poses=np.column_stack(
+            (uv_to_world(grid, nodes[:, :2]), nodes[:, 2] + float(grid.origin_xy_yaw[2]))
+        ),
+        length_m=float(np.hypot(seg[:, 0], seg[:, 1]).sum()),
+        reversals=int(np.count_nonzero(np.diff(gears[:-1].astype(np.int64)) != 0)),
+        min_clearance_m=float(clearance.min()),
+        max_curvature=float(np.abs(curvature).max()),
+        profile=profile,
+        trajectory=trajectory,
+        tracking=tracking,
+        expanded=found.expanded,
+        timings_ms=timings,
+    )
+
+
+def _assemble(
+    nodes: NDArray[np.float64],
+    pieces: list[tuple[NDArray[np.float64], NDArray[np.float64]]],
+    keep: NDArray[np.int64],
+    radius: float,
+    reverse: bool,
+) -> tuple[NDArray[np.float64], NDArray[np.int8], NDArray[np.float64]]:
+    """The final path's poses (grid frame), gears and curvatures (1/cells), start to goal:
+    kept pieces as they were, shortcuts as the shortest analytic curve."""
+    from slamcli.planning.curves import shortest_curve
+    from slamcli.planning.hybrid_astar import _L, _R, _S, sample_pieces, segment_curvatures
+
+    codes = {"S": _S, "L": _L, "R": _R}
+    poses = [nodes[:1]]
+    gears: list[NDArray[np.int8]] = []
+    curvs: list[NDArray[np.float64]] = []
+    for i, j in itertools.pairwise(keep):
+        if j == i + 1:
+            kappas, lengths = pieces[j]
+        else:
+            curve = shortest_curve(tuple(nodes[i]), tuple(nodes[j]), radius, reverse=reverse)
+            kappas = segment_curvatures([codes[k] for k in curve.kinds], radius)
+            lengths = np.asarray(curve.lengths, dtype=np.float64)
+        p, g, c = sample_pieces(nodes[i], kappas, lengths, 0.5)
+        poses.append(p)
+        gears.append(g)
+        curvs.append(c)
+    all_poses = np.vstack(poses)
+    # A sample carries the gear/curvature of the piece it ends; the motion leaving a pose is
+    # the next sample's, and the goal repeats the last.
+    g_end = np.concatenate(gears)
+    c_end = np.concatenate(curvs)
+    direction = np.concatenate((g_end, g_end[-1:])).astype(np.int8)
+    curvature = np.concatenate((c_end, c_end[-1:]))
+    return all_poses, direction, curvature
+
+
+def _no_path(found: Any, settings: CarSettings, search: Any, limit: int, ok: int) -> None:
+    if found.status == limit:
+        raise NoPathError(
+            f"no path found within {found.expanded} search states",
+            hint="the goal may be unreachable for this footprint and turn radius; try a "
+            "smaller --min-turn-radius or footprint, or a goal in more open space",
+        )
+    if not settings.reverse:
+        with_reverse = search(True, min(settings.max_expanded, 500_000))
+        if with_reverse.status == ok:
+            raise NoPathError(
+                f"no forward-only path: the goal pose cannot be reached without reversing "
+                f"({found.expanded} states explored)",
+                hint="pass --reverse to allow gear changes, or give a goal heading the robot "
+                "can reach driving forwards",
+            )
+    raise NoPathError(
+        f"no path: every pose reachable from the start was explored ({found.expanded} "
+        "states) without reaching the goal pose",
+        hint="the footprint does not fit through the way to the goal; try a smaller "
+        "--footprint or --min-turn-radius, or another goal",
+    )

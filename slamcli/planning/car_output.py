@@ -1,0 +1,103 @@
+"""Write a car-like plan's files into a run folder: CSVs, plan.json and plan.png.
+
+- ``path.csv`` ``x,y,yaw,direction,curvature``: the final path (m, rad, +1 forward / -1
+  reverse for the motion leaving each pose, 1/m), at most half a map cell apart;
+- ``path_search.csv`` ``x,y,yaw``: the search's lattice poses before smoothing;
+- ``trajectory.csv`` ``t,x,y,theta,v,omega``: the path timed every ``dt_s`` (v < 0 reversing);
+- ``tracked.csv`` ``t,x,y,theta,v,omega``: the simulated bicycle-model robot;
+- ``plan.json``: the figures and settings (keys in :func:`car_plan_record`);
+- ``plan.png``: the map, the path coloured by gear, footprints along it, start and goal.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from slamcli.planning.car import CarPlanResult
+from slamcli.planning.output import PLAN_SCHEMA_VERSION, _csv, _map_record
+from slamcli.rundir import RunDir
+
+CAR_OUTPUT_FILES = (
+    "path.csv",
+    "path_search.csv",
+    "trajectory.csv",
+    "tracked.csv",
+    "plan.json",
+    "plan.png",
+)
+
+
+def car_plan_record(result: CarPlanResult, map_file: str | Path | None = None) -> dict[str, Any]:
+    """plan.json's content for ``--motion ackermann``.
+
+    Keys: ``schema_version``, ``slamcli_version``, ``motion`` ("ackermann"), ``map`` (as for
+    the round robot), ``start``/``goal`` ([x, y, yaw] m, rad), ``footprint`` (vertices, m),
+    ``settings``, ``limits``, ``length_m``, ``reversals`` (gear changes), ``min_clearance_m``
+    (footprint to the nearest blocked cell over every pose, capped at 2 m),
+    ``max_curvature_per_m`` and ``curvature_limit_per_m`` (1 / min turn radius),
+    ``goal_error_m``/``goal_error_deg`` (last pose to the goal), ``expanded``, ``timings_ms``,
+    ``trajectory_s``, ``time_to_goal_s``, ``goal_reached``, ``tracking``.
+    """
+    from slamcli import __version__
+
+    s = result.settings
+    tr = result.tracking
+    err_m, err_rad = result.goal_error
+    return {
+        "schema_version": PLAN_SCHEMA_VERSION,
+        "slamcli_version": __version__,
+        "motion": "ackermann",
+        "map": _map_record(result.grid, map_file),
+        "start": list(result.start),
+        "goal": list(result.goal),
+        "footprint": s.footprint.vertices.tolist(),
+        "settings": {
+            "min_turn_radius_m": s.min_turn_radius_m,
+            "reverse": s.reverse,
+            "unknown": s.unknown,
+            "bin_m": s.bin_m,
+            "step_m": s.step_m,
+            "n_steer": s.n_steer,
+            "reverse_weight": s.reverse_weight,
+            "switch_penalty_m": s.switch_penalty_m,
+            "max_expanded": s.max_expanded,
+        },
+        "limits": {k: getattr(result.limits, k) for k in result.limits.__dataclass_fields__},
+        "length_m": result.length_m,
+        "reversals": result.reversals,
+        "min_clearance_m": result.min_clearance_m,
+        "max_curvature_per_m": result.max_curvature,
+        "curvature_limit_per_m": 1.0 / s.min_turn_radius_m,
+        "goal_error_m": err_m,
+        "goal_error_deg": math.degrees(err_rad),
+        "expanded": result.expanded,
+        "timings_ms": result.timings_ms,
+        "trajectory_s": result.profile.duration_s,
+        "time_to_goal_s": tr.time_to_goal_s,
+        "goal_reached": tr.reached_goal,
+        "tracking": {
+            "cross_track_max_m": tr.cross_track_max_m,
+            "cross_track_rms_m": tr.cross_track_rms_m,
+        },
+    }
+
+
+def write_car_plan(
+    result: CarPlanResult, run: RunDir, map_file: str | Path | None = None
+) -> list[Path]:
+    """Write every file of the module docstring into ``run``; returns their paths."""
+    from slamcli.planning.car_plot import plot_car_plan
+
+    path = np.column_stack((result.poses, result.direction.astype(np.float64), result.curvature))
+    run.write_text("path.csv", _csv("x,y,yaw,direction,curvature", path))
+    run.write_text("path_search.csv", _csv("x,y,yaw", result.search_poses))
+    run.write_text("trajectory.csv", _csv("t,x,y,theta,v,omega", result.trajectory))
+    run.write_text("tracked.csv", _csv("t,x,y,theta,v,omega", result.tracking.states))
+    run.write_json("plan.json", car_plan_record(result, map_file))
+    with run.atomic("plan.png") as tmp:
+        plot_car_plan(tmp, result)
+    return [run.path / name for name in CAR_OUTPUT_FILES]

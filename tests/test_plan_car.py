@@ -1,0 +1,160 @@
+"""Car-like planning (Hybrid-A*) on a synthetic yard and on real building floors.
+
+Each path is checked independently of the planner's own figures: the footprint at every pose
+and halfway between consecutive poses, the curvature from the poses' headings and spacing, the
+goal pose, and the length against OMPL's best planner given at least the same time.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from planning_data import (
+    BAY_GOAL,
+    BAY_GOAL_NOSE_IN,
+    SMALL_CAR,
+    SMALL_RADIUS_M,
+    YARD_CAR,
+    YARD_RADIUS_M,
+    YARD_START,
+    far_poses,
+    ompl_car_length,
+    yard,
+)
+
+from slamcli.errors import MapError, NoPathError
+from slamcli.planning.car import CarPlanResult, CarSettings, car_blocked, plan_car
+from slamcli.planning.car_motion import CarLimits
+from slamcli.planning.footprint import FootprintChecker
+from slamcli.planning.planner import load_map
+from slamcli.types import OccupancyGrid
+
+MAPS = Path(__file__).resolve().parents[2] / "shared/data/maps"
+YARD_LIMITS = CarLimits(max_speed=2.0, wheelbase_m=2.7, min_turn_radius_m=YARD_RADIUS_M)
+SMALL_LIMITS = CarLimits(max_speed=1.0, wheelbase_m=0.5, min_turn_radius_m=SMALL_RADIUS_M)
+
+
+def _check_path(result: CarPlanResult, radius_m: float) -> None:
+    """Footprint free everywhere, curvature within 1/R + 1 %, goal within 5 cm and 2 deg."""
+    poses = result.poses
+    checker = FootprintChecker(result.blocked, result.grid, result.settings.footprint)
+    assert checker.free(poses).all()
+    # Halfway poses: the path between samples is an arc or a line; its midpoint pose is the
+    # mean position and the mean heading (exact for a line, within a hair for short arcs).
+    dyaw = np.angle(np.exp(1j * np.diff(poses[:, 2])))
+    mid = np.column_stack(((poses[:-1, :2] + poses[1:, :2]) / 2, poses[:-1, 2] + dyaw / 2))
+    assert checker.free(mid).all()
+    step = np.hypot(*np.diff(poses[:, :2], axis=0).T)
+    assert step.max() <= result.grid.resolution_m * 0.5 + 1e-9
+    moving = step > 1e-9
+    # Chord-based curvature of an arc: 2 sin(dyaw / 2) / chord = 1/R exactly.
+    kappa = 2 * np.abs(np.sin(dyaw[moving] / 2)) / step[moving]
+    assert kappa.max() <= (1 / radius_m) * 1.01
+    assert result.max_curvature <= (1 / radius_m) * 1.01
+    err_m, err_rad = result.goal_error
+    assert err_m <= 0.05
+    assert math.degrees(err_rad) <= 2.0
+    assert result.tracking.reached_goal
+
+
+@pytest.fixture(scope="module")
+def yard_grid() -> OccupancyGrid:
+    return yard()
+
+
+@pytest.fixture(scope="module")
+def bay_plan(yard_grid: OccupancyGrid) -> tuple[CarPlanResult, float]:
+    t = time.perf_counter()
+    result = plan_car(
+        yard_grid, YARD_START, BAY_GOAL, CarSettings(YARD_CAR, YARD_RADIUS_M), YARD_LIMITS
+    )
+    return result, time.perf_counter() - t
+
+
+def test_yard_bay_needs_and_gets_a_reversal(bay_plan: tuple[CarPlanResult, float]) -> None:
+    result, _ = bay_plan
+    _check_path(result, YARD_RADIUS_M)
+    assert result.reversals >= 1
+    assert (result.direction < 0).any()
+    # The car backs into the bay: its last stretch is driven in reverse.
+    assert result.direction[-2] == -1
+    assert result.min_clearance_m > 0
+
+
+def test_yard_without_reversing_is_refused_with_the_reason(yard_grid: OccupancyGrid) -> None:
+    settings = CarSettings(YARD_CAR, YARD_RADIUS_M, reverse=False)
+    with pytest.raises(NoPathError) as err:
+        plan_car(yard_grid, YARD_START, BAY_GOAL, settings, YARD_LIMITS)
+    assert "without reversing" in str(err.value)
+    assert "--reverse" in (err.value.hint or "")
+
+
+def test_yard_forward_only_goal_is_dubins(yard_grid: OccupancyGrid) -> None:
+    settings = CarSettings(YARD_CAR, YARD_RADIUS_M, reverse=False)
+    result = plan_car(yard_grid, YARD_START, BAY_GOAL_NOSE_IN, settings, YARD_LIMITS)
+    _check_path(result, YARD_RADIUS_M)
+    assert result.reversals == 0
+    assert (result.direction > 0).all()
+
+
+def test_yard_length_within_ten_percent_of_ompl(
+    yard_grid: OccupancyGrid, bay_plan: tuple[CarPlanResult, float]
+) -> None:
+    result, seconds = bay_plan
+    blocked = car_blocked(yard_grid, "blocked")
+    ref = ompl_car_length(
+        yard_grid,
+        blocked,
+        YARD_CAR,
+        YARD_RADIUS_M,
+        YARD_START,
+        BAY_GOAL,
+        time_s=max(1.0, seconds),
+    )
+    assert ref["best"] is not None
+    assert result.length_m <= 1.1 * ref["best"]
+
+
+@pytest.mark.parametrize(
+    ("name", "room_m"),
+    [("stata_basement", 0.8), ("building_31", 0.8), ("turtlebot3_world", 0.6)],
+)
+def test_building_floors_small_car(name: str, room_m: float) -> None:
+    """Far-apart poses where the footprint fits at any heading (the Nav2 world is tight: 0.75
+    m of room at most, so its poses have 0.6 m)."""
+    grid, _ = load_map(MAPS / f"{name}.yaml")
+    blocked = car_blocked(grid, "blocked")
+    for start, goal in far_poses(grid, blocked, room_m, 2, seed=3):
+        result = plan_car(grid, start, goal, CarSettings(SMALL_CAR, SMALL_RADIUS_M), SMALL_LIMITS)
+        _check_path(result, SMALL_RADIUS_M)
+        straight = math.hypot(goal[0] - start[0], goal[1] - start[1])
+        assert result.length_m >= straight
+
+
+def test_deterministic(yard_grid: OccupancyGrid, bay_plan: tuple[CarPlanResult, float]) -> None:
+    again = plan_car(
+        yard_grid, YARD_START, BAY_GOAL, CarSettings(YARD_CAR, YARD_RADIUS_M), YARD_LIMITS
+    )
+    assert np.array_equal(again.poses, bay_plan[0].poses)
+    assert np.array_equal(again.trajectory, bay_plan[0].trajectory)
+
+
+def test_start_in_a_wall_names_a_free_place(yard_grid: OccupancyGrid) -> None:
+    with pytest.raises(MapError) as err:
+        plan_car(
+            yard_grid,
+            (21.0, 10.0, 0.0),
+            BAY_GOAL,
+            CarSettings(YARD_CAR, YARD_RADIUS_M),
+            YARD_LIMITS,
+        )
+    assert "--start" in str(err.value)
+    hint = err.value.hint or ""
+    assert "move --start to (" in hint
+    x, y = (float(v) for v in hint.split("move --start to (")[1].split(")")[0].split(","))
+    checker = FootprintChecker(car_blocked(yard_grid, "blocked"), yard_grid, YARD_CAR)
+    assert checker.free(np.array([[x, y, a] for a in np.linspace(-3, 3, 13)])).all()
