@@ -7,6 +7,7 @@ goal pose, and the length against OMPL's best planner given at least the same ti
 
 from __future__ import annotations
 
+import json
 import math
 import time
 from pathlib import Path
@@ -158,3 +159,68 @@ def test_start_in_a_wall_names_a_free_place(yard_grid: OccupancyGrid) -> None:
     x, y = (float(v) for v in hint.split("move --start to (")[1].split(")")[0].split(","))
     checker = FootprintChecker(car_blocked(yard_grid, "blocked"), yard_grid, YARD_CAR)
     assert checker.free(np.array([[x, y, a] for a in np.linspace(-3, 3, 13)])).all()
+
+
+def test_cli_ackermann_writes_the_plan(tmp_path: Path, yard_grid: OccupancyGrid) -> None:
+    from typer.testing import CliRunner
+
+    from slamcli.cli.app import app
+    from slamcli.formats.occupancy.map_server_write import write_map_yaml
+
+    write_map_yaml(tmp_path / "yard.yaml", yard_grid)
+    out = tmp_path / "plan"
+    args = [
+        "plan",
+        str(tmp_path / "yard.yaml"),
+        "--motion",
+        "ackermann",
+        "--footprint",
+        "-1,-0.95;3.5,-0.95;3.5,0.95;-1,0.95",
+        "--min-turn-radius",
+        "5",
+        "--wheelbase",
+        "2.7",
+        "--start",
+        ",".join(str(v) for v in YARD_START),
+        "--goal",
+        ",".join(str(v) for v in BAY_GOAL),
+        "--out",
+        str(out),
+    ]
+    res = CliRunner().invoke(app, args)
+    assert res.exit_code == 0, res.output
+    record = json.loads((out / "plan.json").read_text())
+    assert record["motion"] == "ackermann"
+    assert record["reversals"] >= 1
+    assert record["max_curvature_per_m"] <= 0.2 * 1.01
+    assert record["goal_error_m"] <= 0.05 and record["goal_error_deg"] <= 2
+    assert {"search", "plot", "write", "total"} <= set(record["timings_ms"])
+    path = np.loadtxt(out / "path.csv", delimiter=",", skiprows=1)
+    assert path.shape[1] == 5 and (path[:, 3] == -1).any()
+    traj = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1)
+    assert traj[:, 4].min() < 0 < traj[:, 4].max()
+    assert (out / "plan.png").stat().st_size > 1000
+
+    refused = CliRunner().invoke(app, [*args[:-1], str(tmp_path / "no"), "--no-reverse"])
+    assert refused.exit_code == 1
+    assert "without reversing" in refused.output
+    assert not (tmp_path / "no").exists() or not any((tmp_path / "no").iterdir())
+
+
+def test_cli_ackermann_option_errors(tmp_path: Path) -> None:
+    from typer.testing import CliRunner
+
+    from slamcli.cli.app import app
+
+    base = ["plan", str(MAPS / "building_31.yaml"), "--start", "0,0", "--goal", "5,14"]
+    res = CliRunner().invoke(app, [*base, "--motion", "ackermann", "--out", str(tmp_path / "a")])
+    assert res.exit_code == 1 and "--footprint" in res.output
+    res = CliRunner().invoke(
+        app,
+        [*base, "--motion", "ackermann", "--footprint", "0,0;1,1;1,0;0,1", "--out", str(tmp_path)],
+    )
+    assert res.exit_code == 1 and "--footprint" in res.output
+    res = CliRunner().invoke(
+        app, ["plan", str(MAPS / "building_31.yaml"), "--start", "0,0,1", "--goal", "5,14"]
+    )
+    assert res.exit_code == 1 and "--motion ackermann" in res.output

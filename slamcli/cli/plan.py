@@ -41,8 +41,23 @@ robot follows it with pure pursuit.
 x,y,radius,appear_s,vanish_s (vanish_s empty or inf: it stays). The robot replans when one \
 appears on its path within 1.5 m ahead, and waits when no way leads around it.
 
+[bold]Car-like robots.[/] --motion ackermann plans for a robot that cannot turn in place: \
+--min-turn-radius R, --footprint (a polygon 'x1,y1;x2,y2;...' in the robot's frame, x \
+forward, or a centred rectangle 'LENGTHxWIDTH'), headings in --start/--goal as x,y,yaw (yaw in \
+radians, 0 if left out), and --reverse/--no-reverse. The search is Hybrid-A* with Reeds-Shepp \
+(Dubins without reversing) curves to the goal; the footprint is checked against the occupied \
+(and, with --unknown blocked, unknown) cells at every pose, at most half a cell apart, not as \
+an inflated circle. The path keeps its curvature within 1/R, stops at each gear change, is \
+timed under --max-speed, --max-accel, --max-yaw-rate and --max-lateral-accel, and a \
+bicycle-model robot (--wheelbase) follows it. --robot-radius, --clearance-weight and \
+--obstacles are for --motion diff only.
+
 Writes into --out (default ./plan): path.csv, path_smooth.csv (x,y), trajectory.csv and \
-tracked.csv (t,x,y,theta,v,omega), plan.json (with the time of each stage) and plan.png.
+tracked.csv (t,x,y,theta,v,omega), plan.json (with the time of each stage) and plan.png. With \
+--motion ackermann: path.csv (x,y,yaw,direction,curvature; direction -1 when reversing), \
+path_search.csv (the search's poses), trajectory.csv and tracked.csv (v < 0 reversing), \
+plan.json (length, reversals, min clearance, max curvature, goal error, stage times) and \
+plan.png.
 
 Exit codes: 0 ok; 1 a bad map, start or goal outside the map or not in free space (the \
 message names the nearest free cell), no path (with the number of cells reached), a bad \
@@ -55,7 +70,17 @@ Examples:
 
 [bold]slamcli plan runs/landmarks --start -6,-5.9 --goal 4,5.9 --robot-radius 0.3 \
 --clearance-weight 1 --out runs/landmarks_plan[/] (after the 'slamcli run ekf' example)
+
+[bold]slamcli plan ../shared/data/maps/building_31.yaml --motion ackermann --footprint 0.9x0.6 \
+--min-turn-radius 1.2 --start 0,0,0 --goal 5.5,14,1.57 --out plan_car[/]
 """
+
+
+class Motion(str, Enum):
+    """How the robot moves."""
+
+    diff = "diff"
+    ackermann = "ackermann"
 
 
 class UnknownSpace(str, Enum):
@@ -67,6 +92,38 @@ class UnknownSpace(str, Enum):
 
 def register(app: typer.Typer) -> None:
     app.command("plan", help=PLAN_HELP, rich_help_panel="Maps and paths")(plan)
+
+
+def parse_pose(option: str, text: str) -> tuple[float, float, float | None]:
+    """``"x,y"`` or ``"x,y,yaw"`` (metres, radians) -> finite floats, yaw None when left out;
+    ConfigError naming the option."""
+    parts = [p.strip() for p in text.split(",")]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        values = []
+    if len(values) not in (2, 3) or not all(math.isfinite(v) for v in values):
+        raise ConfigError(
+            f"{option}: expected x,y or x,y,yaw (metres, radians), got {text!r}",
+            hint=f"for example {option} -1.5,2.0 or {option} -1.5,2.0,1.57",
+        )
+    return values[0], values[1], (values[2] if len(values) == 3 else None)
+
+
+def parse_footprint_option(text: str) -> Any:
+    """--footprint: ``LENGTHxWIDTH`` (a rectangle centred on the robot) or a polygon
+    ``x1,y1;x2,y2;...`` in metres."""
+    from slamcli.planning.footprint import Footprint, parse_footprint
+
+    size = text.lower().split("x")
+    if len(size) == 2 and ";" not in text:
+        try:
+            length, width = float(size[0]), float(size[1])
+        except ValueError:
+            pass
+        else:
+            return Footprint.rectangle(length, width)
+    return parse_footprint(text, "--footprint")
 
 
 def parse_xy(option: str, text: str) -> tuple[float, float]:
@@ -94,14 +151,64 @@ def plan(
         ),
     ],
     start: Annotated[
-        str, typer.Option("--start", metavar="X,Y", help="Start x,y in metres.", show_default=False)
+        str,
+        typer.Option(
+            "--start",
+            metavar="X,Y[,YAW]",
+            help="Start x,y in metres (and heading in radians, --motion ackermann).",
+            show_default=False,
+        ),
     ],
     goal: Annotated[
-        str, typer.Option("--goal", metavar="X,Y", help="Goal x,y in metres.", show_default=False)
+        str,
+        typer.Option(
+            "--goal",
+            metavar="X,Y[,YAW]",
+            help="Goal x,y in metres (and heading in radians, --motion ackermann).",
+            show_default=False,
+        ),
     ],
+    motion: Annotated[
+        Motion,
+        typer.Option(
+            "--motion",
+            help="diff: turns in place (differential drive); ackermann: car-like.",
+        ),
+    ] = Motion.diff,
     robot_radius: Annotated[
         float, typer.Option("--robot-radius", help="Robot radius (m) for the inflated zone.")
     ] = 0.2,
+    footprint: Annotated[
+        str | None,
+        typer.Option(
+            "--footprint",
+            metavar="LxW|x1,y1;x2,y2;...",
+            help="Ackermann: the robot's outline, a centred LENGTHxWIDTH rectangle or a convex "
+            "polygon in its frame (m, x forward).",
+            show_default=False,
+        ),
+    ] = None,
+    min_turn_radius: Annotated[
+        float,
+        typer.Option("--min-turn-radius", help="Ackermann: tightest turn radius (m)."),
+    ] = 1.0,
+    reverse: Annotated[
+        bool,
+        typer.Option("--reverse/--no-reverse", help="Ackermann: whether it may drive backwards."),
+    ] = True,
+    wheelbase: Annotated[
+        float | None,
+        typer.Option(
+            "--wheelbase",
+            help="Ackermann: wheelbase (m) of the simulated bicycle; default 0.6 x the "
+            "footprint's length.",
+            show_default=False,
+        ),
+    ] = None,
+    max_lateral_accel: Annotated[
+        float,
+        typer.Option("--max-lateral-accel", help="Ackermann: maximum lateral accel. (m/s²)."),
+    ] = 0.5,
     unknown: Annotated[
         UnknownSpace | None,
         typer.Option(
@@ -145,9 +252,36 @@ def plan(
 
     process = process_start()
     started = _LOADED if process is None else process
-    start_xy = parse_xy("--start", start)
-    goal_xy = parse_xy("--goal", goal)
+    s_pose = parse_pose("--start", start)
+    g_pose = parse_pose("--goal", goal)
     policy = unknown_policy(unknown, allow_unknown)
+    if motion is Motion.ackermann:
+        if obstacles is not None or clearance_weight != 0.0:
+            raise ConfigError(
+                "--obstacles and --clearance-weight are for --motion diff",
+                hint="leave them out with --motion ackermann",
+            )
+        _plan_car(
+            map,
+            s_pose,
+            g_pose,
+            footprint,
+            min_turn_radius,
+            reverse,
+            policy,
+            (max_speed, max_yaw_rate, max_accel, max_lateral_accel, wheelbase),
+            out,
+            force,
+            started,
+        )
+        return
+    for option, pose in (("--start", s_pose), ("--goal", g_pose)):
+        if pose[2] is not None:
+            raise ConfigError(
+                f"{option}: a heading is used only with --motion ackermann",
+                hint=f"give {option} as x,y, or add --motion ackermann",
+            )
+    start_xy, goal_xy = s_pose[:2], g_pose[:2]
     limits = Limits(max_speed, max_yaw_rate, max_accel).checked()
     with RunDir(out, force=force) as run:
         dynamic = read_obstacles(obstacles) if obstacles is not None else []
@@ -173,6 +307,94 @@ def plan(
     render.written(written)
     if not result.tracking.reached_goal:
         render.warn("the simulated robot did not reach the goal within the time limit")
+
+
+def _plan_car(
+    map_path: Path,
+    s_pose: tuple[float, float, float | None],
+    g_pose: tuple[float, float, float | None],
+    footprint: str | None,
+    min_turn_radius: float,
+    reverse: bool,
+    policy: str,
+    limits_in: tuple[float, float, float, float, float | None],
+    out: Path,
+    force: bool,
+    started: float,
+) -> None:
+    """``plan --motion ackermann``: plan, write and print a car-like path."""
+    from slamcli.planning.car import CarSettings, plan_car
+    from slamcli.planning.car_motion import CarLimits
+    from slamcli.planning.car_output import write_car_plan
+    from slamcli.planning.planner import load_map
+    from slamcli.rundir import RunDir
+
+    if footprint is None:
+        raise ConfigError(
+            "--motion ackermann needs --footprint",
+            hint="give the outline as LENGTHxWIDTH (e.g. --footprint 0.9x0.6) or as a polygon "
+            "'x1,y1;x2,y2;...' in metres, x forward",
+        )
+    fp = parse_footprint_option(footprint)
+    settings = CarSettings(fp, min_turn_radius, reverse=reverse, unknown=policy).checked()
+    max_speed, max_yaw_rate, max_accel, max_lateral, wheelbase = limits_in
+    length = float(fp.vertices[:, 0].max() - fp.vertices[:, 0].min())
+    limits = CarLimits(
+        max_speed=max_speed,
+        max_accel=max_accel,
+        max_lateral_accel=max_lateral,
+        max_yaw_rate=max_yaw_rate,
+        wheelbase_m=wheelbase if wheelbase is not None else 0.6 * length,
+        min_turn_radius_m=min_turn_radius,
+    ).checked(
+        {
+            "max_speed": "--max-speed",
+            "max_accel": "--max-accel",
+            "max_lateral_accel": "--max-lateral-accel",
+            "max_yaw_rate": "--max-yaw-rate",
+            "wheelbase_m": "--wheelbase",
+            "min_turn_radius_m": "--min-turn-radius",
+        }
+    )
+    start = (s_pose[0], s_pose[1], s_pose[2] or 0.0)
+    goal = (g_pose[0], g_pose[1], g_pose[2] or 0.0)
+    with RunDir(out, force=force) as run:
+        t0 = time.perf_counter()
+        grid, map_file = load_map(map_path)
+        read_ms = round((time.perf_counter() - t0) * 1000.0, 3)
+        result = plan_car(grid, start, goal, settings, limits)
+        written = write_car_plan(
+            result, run, map_file, timings_ms={"read_map": read_ms}, started=started
+        )
+    render.key_values("Plan", car_summary(result, map_file))
+    render.written(written)
+    if not result.tracking.reached_goal:
+        render.warn("the simulated robot did not reach the goal within the time limit")
+
+
+def car_summary(result: Any, map_file: Path) -> dict[str, str]:
+    """The key figures of a car-like plan, as printed by ``slamcli plan --motion ackermann``."""
+    tr = result.tracking
+    err_m, err_rad = result.goal_error
+    s, g = result.start, result.goal
+    search_ms = result.timings_ms.get("search", 0.0)
+    return {
+        "map": str(map_file),
+        "start -> goal": f"({s[0]:g}, {s[1]:g}, {s[2]:g} rad) -> ({g[0]:g}, {g[1]:g}, "
+        f"{g[2]:g} rad)",
+        "length": f"{result.length_m:.3f} m ({len(result.poses)} poses)",
+        "gear changes": str(result.reversals),
+        "min clearance": f"{result.min_clearance_m:.3f} m (footprint to the nearest blocked cell)",
+        "max curvature": f"{result.max_curvature:.4f} 1/m (limit "
+        f"{1.0 / result.settings.min_turn_radius_m:.4f})",
+        "goal error": f"{err_m:.4f} m, {math.degrees(err_rad):.3f} deg",
+        "search": f"{result.expanded} states in {search_ms:.0f} ms",
+        "trajectory": f"{result.profile.duration_s:.1f} s",
+        "time to goal": "not reached"
+        if tr.time_to_goal_s is None
+        else f"{tr.time_to_goal_s:.1f} s",
+        "cross-track error": f"RMS {tr.cross_track_rms_m:.3f} m, max {tr.cross_track_max_m:.3f} m",
+    }
 
 
 def unknown_policy(unknown: UnknownSpace | None, allow_unknown: bool) -> str:

@@ -21,6 +21,7 @@ Poses are ``(x, y, yaw)`` in the map's world frame (m, rad); the map's origin ya
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import time
@@ -44,6 +45,9 @@ from slamcli.types import OccupancyGrid
 
 SMOOTH_MARGIN_M = 0.10
 """Shortcuts keep at least this clearance wherever the search path had it, metres."""
+
+CLEARANCE_LADDER_M = (0.10, 0.05, 0.02)
+"""Margins the search tries to keep around the footprint, largest first, metres."""
 
 N_HEADINGS = 72
 """Heading bins of the lattice (5 degrees)."""
@@ -249,9 +253,9 @@ def plan_car(
     step_m = settings.step_m or 1.5 * bin_m
     t2 = time.perf_counter()
 
-    def search(reverse: bool, cap: int) -> Any:
+    def search(reverse: bool, cap: int, test: FootprintChecker = checker) -> Any:
         return lattice_search(
-            checker,
+            test,
             holo,
             ss,
             gs,
@@ -267,9 +271,26 @@ def plan_car(
         )
 
     found = search(settings.reverse, settings.max_expanded)
-    timings["search"] = _ms(t2)
     if found.status != FOUND:
         _no_path(found, settings, search, LIMIT, FOUND)
+    # The same search with the footprint grown by a margin (the largest of CLEARANCE_LADDER_M
+    # that works within a few times the first search's effort), so the path keeps that
+    # clearance everywhere when the map allows it.
+    ends = np.asarray([start, goal], dtype=np.float64)
+    spent = found.expanded
+    for margin in CLEARANCE_LADDER_M:
+        wider = FootprintChecker(
+            blocked, grid, settings.footprint.offset(margin), dist=checker.dist
+        )
+        if not wider.free(ends).all():
+            continue
+        wide = search(settings.reverse, 8 * found.expanded + 1000, wider)
+        spent += wide.expanded
+        if wide.status == FOUND:
+            found = wide
+            break
+    found = dataclasses.replace(found, expanded=spent)
+    timings["search"] = _ms(t2)
 
     t3 = time.perf_counter()
     nodes = np.vstack((found.nodes, np.asarray([gs])))
@@ -284,14 +305,21 @@ def plan_car(
     for a in range(1, len(nodes)):
         p = sample_pieces(nodes[a - 1], *pieces[a], 0.5)[0]
         piece_clear[a] = bool(checker_margin.free_uv(p).all()) if len(p) else True
+    piece_gears = np.zeros((len(nodes), 3), dtype=np.int64)
+    for a in range(1, len(nodes)):
+        signs = np.sign(pieces[a][1][pieces[a][1] != 0]).astype(np.int64)
+        if len(signs):
+            piece_gears[a] = (signs[0], signs[-1], np.count_nonzero(np.diff(signs)))
     keep = shortcut_path(
         checker,
         checker_margin,
         nodes,
         piece_len,
         piece_clear,
+        piece_gears,
         radius=radius,
         reverse=settings.reverse,
+        min_piece=0.5 * step,
     )
     poses_g, gears, curv = _assemble(nodes, pieces, keep, radius, settings.reverse)
     timings["smooth"] = _ms(t3)

@@ -12,6 +12,7 @@
 from __future__ import annotations
 
 import math
+import time
 from pathlib import Path
 from typing import Any
 
@@ -87,17 +88,38 @@ def car_plan_record(result: CarPlanResult, map_file: str | Path | None = None) -
 
 
 def write_car_plan(
-    result: CarPlanResult, run: RunDir, map_file: str | Path | None = None
+    result: CarPlanResult,
+    run: RunDir,
+    map_file: str | Path | None = None,
+    *,
+    timings_ms: dict[str, float] | None = None,
+    started: float | None = None,
 ) -> list[Path]:
-    """Write every file of the module docstring into ``run``; returns their paths."""
+    """Write every file of the module docstring into ``run``; returns their paths.
+
+    plan.json's ``timings_ms`` holds ``timings_ms`` (the caller's stages, such as
+    ``read_map``), the plan's own stages, ``plot``, ``write`` and, when ``started`` (a
+    ``time.perf_counter()`` value) is given, ``total``: plan.json is written last.
+    """
     from slamcli.planning.car_plot import plot_car_plan
 
+    t0 = time.perf_counter()
     path = np.column_stack((result.poses, result.direction.astype(np.float64), result.curvature))
     run.write_text("path.csv", _csv("x,y,yaw,direction,curvature", path))
     run.write_text("path_search.csv", _csv("x,y,yaw", result.search_poses))
     run.write_text("trajectory.csv", _csv("t,x,y,theta,v,omega", result.trajectory))
     run.write_text("tracked.csv", _csv("t,x,y,theta,v,omega", result.tracking.states))
-    run.write_json("plan.json", car_plan_record(result, map_file))
+    t1 = time.perf_counter()
     with run.atomic("plan.png") as tmp:
         plot_car_plan(tmp, result)
+    t2 = time.perf_counter()
+    record = car_plan_record(result, map_file)
+    t3 = time.perf_counter()
+    timings = {**(timings_ms or {}), **result.timings_ms}
+    timings["plot"] = round((t2 - t1) * 1000.0, 3)
+    timings["write"] = round(((t1 - t0) + (t3 - t2)) * 1000.0, 3)
+    if started is not None:
+        timings["total"] = round((t3 - started) * 1000.0, 3)
+    record["timings_ms"] = timings
+    run.write_json("plan.json", record)
     return [run.path / name for name in CAR_OUTPUT_FILES]

@@ -175,6 +175,32 @@ def _curve_free(
 
 
 @numba.njit(cache=True, nogil=True)
+def _gear_runs(lengths: NDArray[np.float64], min_piece: float) -> tuple[int, int, int, bool]:
+    """(first gear, last gear, gear changes, no short run) of signed segment lengths: a run
+    of one gear between two gear changes shorter than ``min_piece`` is a short run (a
+    needless shuffle); the first and last runs may be short."""
+    first = 0
+    last = 0
+    switches = 0
+    run = 0.0
+    ok = True
+    for i in range(lengths.shape[0]):
+        if lengths[i] == 0.0:
+            continue
+        g = 1 if lengths[i] > 0 else -1
+        if first == 0:
+            first = g
+        elif g != last:
+            if switches > 0 and run < min_piece:
+                ok = False
+            switches += 1
+            run = 0.0
+        last = g
+        run += abs(lengths[i])
+    return first, last, switches, ok
+
+
+@numba.njit(cache=True, nogil=True)
 def _bin_key(x: float, y: float, t: float, bin_size: float, nx: int, n_headings: int) -> int:
     """The lattice bin of a pose: ``bin_size`` cells square, ``2 pi / n_headings`` wide."""
     heading = math.floor((t % (2.0 * math.pi)) / (2.0 * math.pi / n_headings)) % n_headings
@@ -256,7 +282,11 @@ def _search_kernel(
         every = max(1, int(hol / (2.0 * radius)))
         if expanded % every == 0 or hol <= 2.0 * radius:
             kinds, lengths = _segments(x, y, t, gx, gy, gt, radius, reverse)
-            if _curve_free(fp, x, y, t, kinds, lengths, radius, spacing):
+            first, _, _, tidy = _gear_runs(lengths, 0.5 * step)
+            # The piece into this node and the curve's first run must not make a shuffle.
+            if first != gear[i] and gear[i] != 0 and lengths.shape[0] > 0:
+                tidy = tidy and abs(lengths[0]) >= 0.5 * step
+            if tidy and _curve_free(fp, x, y, t, kinds, lengths, radius, spacing):
                 return (
                     FOUND,
                     i,
@@ -438,14 +468,17 @@ def _shortcut_kernel(
     nodes: NDArray[np.float64],
     piece_len: NDArray[np.float64],
     piece_clear: NDArray[np.bool_],
+    piece_gears: NDArray[np.int64],
     radius: float,
     reverse: bool,
     window: int,
     spacing: float,
+    min_piece: float,
 ) -> NDArray[np.int64]:
     """Greedy shortcuts between lattice nodes: from each kept node, the farthest node within
-    ``window`` whose analytic curve is shorter than the path between them and free (with the
-    margin footprint where the replaced pieces were all free with it)."""
+    ``window`` whose analytic curve is shorter than the path between them, changes gear no
+    more often, makes no short shuffle, and is free (with the margin footprint where the
+    replaced pieces were all free with it)."""
     k = nodes.shape[0]
     keep = np.zeros(k, dtype=np.int64)
     n_keep = 0
@@ -472,6 +505,21 @@ def _shortcut_kernel(
             for s in range(lengths.shape[0]):
                 total += abs(lengths[s])
             if total >= cum[j] - cum[i] - 1e-9:
+                continue
+            first, last, switches, tidy = _gear_runs(lengths, min_piece)
+            if not tidy:
+                continue
+            before = piece_gears[i, 1]
+            after = piece_gears[j + 1, 0] if j + 1 < k else 0
+            new = switches + (before != 0 and first != before) + (after != 0 and last != after)
+            old = (before != 0 and piece_gears[i + 1, 0] != before) + (
+                after != 0 and piece_gears[j, 1] != after
+            )
+            for a in range(i + 1, j + 1):
+                old += piece_gears[a, 2]
+                if a < j and piece_gears[a, 1] != piece_gears[a + 1, 0]:
+                    old += 1
+            if new > old:
                 continue
             all_clear = True
             for a in range(i + 1, j + 1):
@@ -515,9 +563,11 @@ def shortcut_path(
     nodes: NDArray[np.float64],
     piece_len: NDArray[np.float64],
     piece_clear: NDArray[np.bool_],
+    piece_gears: NDArray[np.int64],
     *,
     radius: float,
     reverse: bool,
+    min_piece: float,
     window: int = 60,
     spacing: float = 0.5,
 ) -> NDArray[np.int64]:
@@ -525,7 +575,9 @@ def shortcut_path(
     consecutive kept nodes ``i < j`` with ``j > i + 1`` are joined by the shortest analytic
     curve, the others by their original piece. ``piece_len[a]``/``piece_clear[a]`` describe the
     piece that reaches node ``a`` (cells; free with the ``margin`` checker's larger footprint,
-    which a shortcut replacing only such pieces must then be free with too)."""
+    which a shortcut replacing only such pieces must then be free with too); ``piece_gears[a]``
+    its first gear, last gear and gear changes (row 0 zeros); ``min_piece`` the shortest run
+    of one gear a shortcut may put between two gear changes (cells)."""
     return np.asarray(
         _shortcut_kernel(
             footprint_test(checker),
@@ -533,10 +585,12 @@ def shortcut_path(
             np.ascontiguousarray(nodes, dtype=np.float64),
             np.ascontiguousarray(piece_len, dtype=np.float64),
             np.ascontiguousarray(piece_clear, dtype=np.bool_),
+            np.ascontiguousarray(piece_gears, dtype=np.int64),
             float(radius),
             bool(reverse),
             int(window),
             float(spacing),
+            float(min_piece),
         )
     )
 
