@@ -26,8 +26,15 @@ The first section measures numba's share of a command's wall time in fresh proce
 import of numba and the first call of each kernel, with an empty cache (compiling) and again
 with that cache filled.
 
+The last section plans for car-like robots (`slamcli.planning.car.plan_car`, Hybrid-A*): a
+4.5 x 1.9 m car with a 5 m turn radius in the synthetic yard of `tests/planning_data.py`
+(backing into a bay, and a far open goal without reversing), and a 0.9 x 0.6 m robot with a 1.2 m
+radius between seeded far-apart poses on the building floors. Beside each: OMPL's RRT* and BIT*
+on its Reeds-Shepp (or Dubins) state space with our exact footprint test, each given the larger
+of our time and 1 s, then OMPL's simplifier; the ratio is our length over OMPL's best.
+
 Usage: python benchmarks/bench_plan.py [MAPS_DIR] [--size 4000] [--pairs 4] [--seed 0]
-       [--no-maze-reference] [--no-startup] [--no-maze]
+       [--no-maze-reference] [--no-startup] [--no-maze] [--no-car]
 """
 
 from __future__ import annotations
@@ -277,6 +284,7 @@ def main() -> None:
     parser.add_argument("--no-maze-reference", action="store_true")
     parser.add_argument("--no-maze", action="store_true")
     parser.add_argument("--no-startup", action="store_true")
+    parser.add_argument("--no-car", action="store_true")
     args = parser.parse_args()
 
     if not args.no_startup:
@@ -331,6 +339,71 @@ def main() -> None:
                 "maze", label, blocked, pairs, 1.0, None, reference=not args.no_maze_reference
             )
     table.summary()
+    if not args.no_car:
+        print()
+        car(args.maps, args.seed)
+
+
+def car(maps: Path, seed: int) -> None:
+    """The car-like table of the module doc."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from planning_data import (  # type: ignore[import-not-found]
+        BAY_GOAL,
+        SMALL_CAR,
+        SMALL_RADIUS_M,
+        YARD_CAR,
+        YARD_RADIUS_M,
+        YARD_START,
+        far_poses,
+        ompl_car_length,
+        yard,
+    )
+
+    from slamcli.planning.car import CarSettings, car_blocked, plan_car
+    from slamcli.planning.car_motion import CarLimits
+    from slamcli.planning.planner import load_map
+
+    cases = []
+    grid = yard()
+    cases.append(("yard, into the bay", grid, YARD_CAR, YARD_RADIUS_M, YARD_START, BAY_GOAL, True))
+    cases.append(
+        ("yard, forward only", grid, YARD_CAR, YARD_RADIUS_M, YARD_START, (55.0, 30.0, 0.0), False)
+    )
+    for name in ("stata_basement", "building_31"):
+        grid, _ = load_map(maps / f"{name}.yaml")
+        for k, (a, b) in enumerate(far_poses(grid, car_blocked(grid, "blocked"), 0.8, 2, seed)):
+            cases.append((f"{name} #{k}", grid, SMALL_CAR, SMALL_RADIUS_M, a, b, True))
+    print(
+        f"{'car-like case':24s} {'ours m':>8s} {'gears':>5s} {'ours ms':>8s} {'RRT* m':>8s} "
+        f"{'BIT* m':>8s} {'budget s':>8s} {'ours/best':>9s} {'clear m':>8s} {'max k':>7s}"
+    )
+    for label, grid, fp, radius, a, b, reverse in cases:
+        limits = CarLimits(
+            max_speed=1.0,
+            wheelbase_m=0.6 * float(np.ptp(fp.vertices[:, 0])),
+            min_turn_radius_m=radius,
+        )
+        settings = CarSettings(fp, radius, reverse=reverse)
+        plan_car(grid, a, b, settings, limits)  # compiled kernels loaded
+        t0 = time.perf_counter()
+        result = plan_car(grid, a, b, settings, limits)
+        ours = time.perf_counter() - t0
+        budget = max(1.0, ours)
+        ref = ompl_car_length(
+            grid, result.blocked, fp, radius, a, b, reverse=reverse, time_s=budget
+        )
+
+        def fmt(v: float | None) -> str:
+            return f"{v:8.2f}" if v is not None else f"{'none':>8s}"
+
+        best = ref["best"]
+        ratio = f"{result.length_m / best:9.3f}" if best else f"{'-':>9s}"
+        print(
+            f"{label:24s} {result.length_m:8.2f} {result.reversals:5d} {ours * 1000:8.0f} "
+            f"{fmt(ref['RRTstar'])} {fmt(ref['BITstar'])} {budget:8.1f} {ratio} "
+            f"{result.min_clearance_m:8.3f} {result.max_curvature * radius:7.3f}"
+        )
+    print("max k: the path's largest curvature times R (at most 1); goal: ours/best <= 1.1")
 
 
 if __name__ == "__main__":
