@@ -303,6 +303,34 @@ def test_plan_runs_on_the_map_the_bag_made(ccny_run, tmp_path: Path) -> None:  #
     assert plan["goal_reached"] is True
     assert plan["length_m"] >= np.hypot(*(goal - start)) - 1e-6
 
+    # A small car-like robot on the same map, arriving turned around.
+    heading = math.atan2(goal[1] - start[1], goal[0] - start[0])
+    result = CliRunner().invoke(
+        app,
+        [
+            "plan",
+            str(ccny_run.out),
+            "--motion",
+            "ackermann",
+            "--footprint",
+            "0.2x0.14",
+            "--min-turn-radius",
+            "0.3",
+            "--start",
+            f"{start[0]:.3f},{start[1]:.3f},{heading:.3f}",
+            "--goal",
+            f"{goal[0]:.3f},{goal[1]:.3f},{heading + math.pi:.3f}",
+            "--out",
+            str(tmp_path / "car"),
+        ],
+    )
+    assert result.exit_code == 0, result.output
+    car = json.loads((tmp_path / "car" / "plan.json").read_text())
+    assert car["goal_reached"] is True
+    assert car["goal_error_m"] <= 0.05 and car["goal_error_deg"] <= 2.0
+    assert car["max_curvature_per_m"] <= car["curvature_limit_per_m"] * 1.01
+    assert car["length_m"] >= np.hypot(*(goal - start)) - 1e-6
+
 
 def test_a_log_without_scans_is_refused_with_its_topics() -> None:
     from typer.testing import CliRunner
