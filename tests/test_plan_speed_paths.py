@@ -36,7 +36,7 @@ from slamcli.planning.costmap import (
 )
 from slamcli.planning.output import _csv
 from slamcli.planning.planner import PlanResult, min_clearance, plan, reachable_cells
-from slamcli.planning.plot import INFLATED_RGB, plan_figure
+from slamcli.planning.plot import INFLATED_RGB, plan_canvas, plot_plan
 from slamcli.planning.smooth import SegmentChecker, segment_costs, shortcut, touched_cells
 from slamcli.planning.tracker import _Track, unicycle_step_scalar
 from slamcli.planning.trajectory import Limits, time_parameterise
@@ -499,20 +499,32 @@ def _pixel(fig: Any, ax: Any, xy: tuple[float, float]) -> np.ndarray:
 
 
 @pytest.mark.parametrize("quarter_turns", [0, 1, 2])
-def test_plan_png_draws_cells_where_they_are(quarter_turns: int) -> None:
+def test_plan_png_draws_cells_where_they_are(quarter_turns: int, tmp_path: Path) -> None:
+    import cv2
+
     plain = _maze()
     grid = plain if quarter_turns == 0 else _turned(plain, quarter_turns)
     start, goal = (tuple(float(v) for v in e.split(",")) for e in _maze_ends(plain))
     result: PlanResult = plan(grid, start, goal, robot_radius_m=0.1)
-    fig = plan_figure(result)
-    ax = fig.axes[0]
+    png = plot_plan(tmp_path / "plan.png", result)
+    image = cv2.imread(str(png), cv2.IMREAD_COLOR)[..., ::-1]
+    # The same picture as the canvas's, whose to_pixel finds the world points in it.
+    canvas = plan_canvas(result)
+    np.testing.assert_array_equal(image, canvas.render())
+
+    def pixel(xy: tuple[float, float]) -> np.ndarray:
+        col, row = np.rint(canvas.to_pixel(xy)).astype(int)
+        return image[row, col].astype(int)
+
     wall = tuple(cell_to_world(plain, (24, 30)))  # between the corridors
     unknown = tuple(cell_to_world(plain, (18, 15)))
     inflated = tuple(cell_to_world(plain, (7, 20)))  # beside the path, inside the corridor
-    assert (_pixel(fig, ax, wall) < 40).all()
-    assert (np.abs(_pixel(fig, ax, unknown) - 204) <= 3).all()
+    assert (pixel(wall) < 40).all()
+    assert (np.abs(pixel(unknown) - 204) <= 3).all()
     pink = np.rint(np.array(INFLATED_RGB) * 255)
-    assert (np.abs(_pixel(fig, ax, inflated) - pink) <= 3).all()
+    assert (np.abs(pixel(inflated) - pink) <= 3).all()
+    # Outside the map (left of x = -2 m) the picture is white.
+    assert (pixel((-2.5, 3.3)) == 255).all()
 
 
 def test_report_map_honours_the_yaw(monkeypatch: pytest.MonkeyPatch, tmp_path: Path) -> None:

@@ -1,10 +1,12 @@
 """plan.png: the map with the inflated zone, the paths, start, goal and dynamic obstacles.
 
-Drawn on matplotlib's Agg canvas without pyplot (as :mod:`slamcli.report`), in world
-metres with y up. The map is drawn from an image the size of the figure, not of the map:
-:func:`draw_grid` crops the cells in view, averages them down to about one pixel of the figure
-each and places the image with the origin's yaw, so a map of millions of cells costs no more
-to draw than a small one.
+Drawn with OpenCV on a :class:`slamcli.planning.canvas.Canvas`, in world metres with y up, so
+the plan command never imports matplotlib. The map is drawn from the cells in view, reduced to
+about one cell per pixel and placed with the origin's yaw, so a map of millions of cells costs
+no more to draw than a small one.
+
+:func:`draw_grid` draws a map in the same spirit (cells in view, block averages, the
+origin's yaw) on a matplotlib Axes, for the run reports (:mod:`slamcli.report`).
 """
 
 from __future__ import annotations
@@ -12,20 +14,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
 
-from slamcli.errors import ExportError
 from slamcli.planning.costmap import map_bounds, world_to_uv
 from slamcli.planning.planner import PlanResult
 from slamcli.types import OccupancyGrid
 
-FIG_WIDTH_IN = 8.0
-"""Width of plan.png in inches (at :data:`DPI`); the height follows the view's aspect."""
-
-DPI = 100
+if TYPE_CHECKING:
+    from slamcli.planning.canvas import Canvas
 
 UNKNOWN_GREY = 0.8
 """Grey level (0 black .. 1 white) of unknown cells in plan.png."""
@@ -33,94 +32,56 @@ UNKNOWN_GREY = 0.8
 INFLATED_RGB = (1.0, 0.78, 0.72)
 """Colour of the cells the robot's radius blocks around obstacles."""
 
-_MARGIN_IN = {"left": 0.75, "right": 0.25, "top": 0.4, "bottom": 1.05}
-"""Room around the map (inches) for the title, the tick labels and the legend below."""
-
 
 def plot_plan(path: str | Path, result: PlanResult) -> Path:
-    """Write :func:`plan_figure` to ``path`` (PNG)."""
-    fig = plan_figure(result)
-    try:
-        fig.savefig(path, format="png", dpi=DPI)
-    except OSError as exc:
-        raise ExportError(f"{path}: cannot write the plot ({exc.strerror})") from exc
-    return Path(path)
+    """Write :func:`plan_canvas` to ``path`` (PNG, about 800 pixels wide)."""
+    return plan_canvas(result).save(path)
 
 
-def plan_figure(result: PlanResult) -> Any:
-    """The picture as a matplotlib Figure (Agg canvas attached). The view is cropped to the
-    known part of the map, the paths and the obstacles, with a margin."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    from matplotlib.patches import Circle
+def plan_canvas(result: PlanResult) -> Canvas:
+    """The picture: the map (inflated zone pink, unknown grey), the grid path, replanned
+    paths, the smoothed path, the tracked path, the dynamic obstacles (disc, dashed zone the
+    robot's centre must keep out of, and the times they are present), the replan / wait
+    events, start and goal. The view is the known part of the map, the paths and the
+    obstacles, with a margin."""
+    from slamcli.planning.canvas import BLACK, BLUE, GREEN, ORANGE, PURPLE, RED, Canvas
 
     cm = result.costmap
-    view = _view(result)
-    # A fixed layout sized to the view: no layout engine, so the figure is drawn only once.
-    axes_w = FIG_WIDTH_IN - _MARGIN_IN["left"] - _MARGIN_IN["right"]
-    aspect = (view[3] - view[2]) / max(view[1] - view[0], 1e-9)
-    axes_h = min(max(axes_w * aspect, 1.5), 9.0)
-    fig_h = axes_h + _MARGIN_IN["top"] + _MARGIN_IN["bottom"]
-    fig = Figure(figsize=(FIG_WIDTH_IN, fig_h))
-    FigureCanvasAgg(fig)
-    ax = fig.add_axes(
-        (
-            _MARGIN_IN["left"] / FIG_WIDTH_IN,
-            _MARGIN_IN["bottom"] / fig_h,
-            axes_w / FIG_WIDTH_IN,
-            axes_h / fig_h,
-        )
-    )
-    draw_grid(ax, cm.grid, _plan_colours(result), view, axes_w * DPI)
-
-    ax.plot(*result.grid_xy.T, color="tab:orange", lw=1.0, ls="--", label="grid path")
-    for k, (_, pts) in enumerate(result.tracking.paths[1:]):
-        ax.plot(*pts.T, color="tab:purple", lw=1.0, ls=":", label="replanned" if k == 0 else None)
-    ax.plot(*result.smooth_xy.T, color="tab:blue", lw=1.6, label="smoothed path")
-    states = result.tracking.states
-    if len(states):
-        ax.plot(states[:, 1], states[:, 2], color="tab:green", lw=0.9, label="tracked")
-    for ob in result.obstacles:
-        ax.add_patch(Circle((ob.x, ob.y), ob.radius, color="tab:purple", alpha=0.5))
-        ax.add_patch(
-            Circle(
-                (ob.x, ob.y),
-                ob.radius + cm.robot_radius_m,
-                fill=False,
-                ls="--",
-                color="tab:purple",
-                lw=0.8,
-            )
-        )
-        until = "" if math.isinf(ob.vanish_s) else f"-{ob.vanish_s:g}"
-        ax.annotate(
-            f"{ob.appear_s:g}{until or '+'} s",
-            (ob.x, ob.y),
-            fontsize="x-small",
-            ha="center",
-            va="center",
-        )
-    events = result.tracking.events
-    if events:
-        ex = [e["x"] for e in events]
-        ey = [e["y"] for e in events]
-        ax.plot(ex, ey, "x", color="k", ms=7, label="replan / wait")
-    ax.plot(*result.start_xy, "o", color="tab:green", ms=8, label="start")
-    ax.plot(*result.goal_xy, "*", color="tab:red", ms=12, label="goal")
-
-    ax.set_xlim(view[0], view[1])
-    ax.set_ylim(view[2], view[3])
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("y (m)")
-    ax.set_title(
+    title = (
         f"grid cost {result.grid_cost_m:.2f} m, smoothed {result.length_m:.2f} m, "
         f"radius {cm.robot_radius_m:g} m (inflated zone shaded)"
     )
-    # Below the map, where it hides nothing (and costs no search for a free corner).
-    fig.legend(loc="lower center", ncols=4, fontsize="small", frameon=False)
-    ax.grid(alpha=0.25)
-    return fig
+    c = Canvas(_view(result), title)
+    c.draw_map(cm.grid, _plan_colours(result))
+    c.grid_lines()
+    c.polyline(result.grid_xy, ORANGE, style="dashed", label="grid path")
+    c.polylines(
+        [pts for _, pts in result.tracking.paths[1:]],
+        PURPLE,
+        style="dotted",
+        width=2,
+        label="replanned" if len(result.tracking.paths) > 1 else None,
+    )
+    c.polyline(result.smooth_xy, BLUE, width=2, label="smoothed path")
+    states = result.tracking.states
+    if len(states):
+        c.polyline(states[:, 1:3], GREEN, label="tracked")
+    for ob in result.obstacles:
+        c.circle((ob.x, ob.y), ob.radius, PURPLE, alpha=0.5, label="obstacle")
+        c.circle((ob.x, ob.y), ob.radius + cm.robot_radius_m, PURPLE, fill=False, style="dashed")
+        until = "" if math.isinf(ob.vanish_s) else f"-{ob.vanish_s:g}"
+        # Above the zone, where it hides neither the obstacle nor the path through it.
+        above = (ob.radius + cm.robot_radius_m) * c.scale_px_per_m + 9.0
+        c.text((ob.x, ob.y), f"{ob.appear_s:g}{until or '+'} s", offset_px=(0.0, -above))
+    events = result.tracking.events
+    if events:
+        exy = np.array([[e["x"], e["y"]] for e in events], dtype=np.float64)
+        c.markers(exy, "x", BLACK, size_px=9, label="replan / wait")
+    c.markers(result.start_xy, "o", GREEN, size_px=11, label="start")
+    c.markers(result.goal_xy, "*", RED, size_px=17, label="goal")
+    r, g, b = (round(v * 255.0) for v in INFLATED_RGB)
+    c.legend("inflated zone", "patch", (r, g, b))
+    return c
 
 
 def draw_grid(
@@ -182,23 +143,26 @@ def occupancy_colours(
 ) -> NDArray[np.uint8]:
     """(h, w, 4) uint8 RGBA of a block of cells: grey ``1 - prob`` (free white, occupied
     black), ``unknown_grey`` where prob is NaN."""
+    import cv2
+
     p = np.asarray(prob[rows, cols], dtype=np.float32)
-    grey = np.where(np.isnan(p), np.float32(unknown_grey), 1.0 - p)
-    out = np.empty((*p.shape, 4), dtype=np.uint8)
-    out[..., :3] = np.rint(grey * 255.0).astype(np.uint8)[..., None]
-    out[..., 3] = 255
-    return out
+    grey = np.rint((1.0 - p) * 255.0)  # NaN where unknown
+    np.copyto(grey, np.rint(np.float32(unknown_grey) * 255.0), where=np.isnan(p))
+    level = grey.astype(np.uint8)
+    opaque = np.full(p.shape, 255, dtype=np.uint8)
+    return np.asarray(cv2.merge((level, level, level, opaque)), dtype=np.uint8)
 
 
 def _plan_colours(result: PlanResult) -> Callable[[slice, slice], NDArray[np.uint8]]:
     """Cell colours of plan.png: :func:`occupancy_colours`, inflated cells pink."""
     cm = result.costmap
-    pink = np.rint(np.array(INFLATED_RGB) * 255.0).astype(np.uint8)
+    pink = np.rint(np.array([*INFLATED_RGB, 1.0]) * 255.0).astype(np.uint8)
 
     def colours(rows: slice, cols: slice) -> NDArray[np.uint8]:
-        out = occupancy_colours(cm.grid.prob, rows, cols)
+        out = np.ascontiguousarray(occupancy_colours(cm.grid.prob, rows, cols))
         inflated = cm.blocked[rows, cols] & ~cm.occupied[rows, cols] & ~cm.unknown[rows, cols]
-        out[inflated, :3] = pink
+        # Each RGBA pixel as one 32-bit word: one masked copy instead of a gather per channel.
+        np.copyto(out.view(np.uint32)[..., 0], pink.view(np.uint32)[0], where=inflated)
         return out
 
     return colours
