@@ -510,8 +510,12 @@ def test_cli_accepts_a_run_folder(tmp_path: Path) -> None:
 def test_cli_errors_have_exit_1_and_a_hint(tmp_path: Path) -> None:
     map_file = str(shared_path("maps", "turtlebot3_world.yaml"))
     out = str(tmp_path / "p")
+    res = runner.invoke(
+        app, ["plan", map_file, "--start", "0,0,1,2", "--goal", "1,1", "--out", out]
+    )
+    assert res.exit_code == 1 and "--start: expected x,y or x,y,yaw" in res.output
     res = runner.invoke(app, ["plan", map_file, "--start", "0,0,1", "--goal", "1,1", "--out", out])
-    assert res.exit_code == 1 and "--start: expected two numbers" in res.output
+    assert res.exit_code == 1 and "heading is used only with --motion ackermann" in res.output
     res = runner.invoke(app, ["plan", map_file, "--start", "50,0", "--goal", "1,1", "--out", out])
     assert res.exit_code == 1
     assert "outside the map" in res.output and "hint:" in res.output

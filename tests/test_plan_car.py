@@ -120,6 +120,23 @@ def test_yard_length_within_ten_percent_of_ompl(
     assert result.length_m <= 1.1 * ref["best"]
 
 
+def test_building_shortest_path_within_ten_percent_of_ompl() -> None:
+    """With --reverse-penalty 1 the planner optimises OMPL's objective, length."""
+    grid, _ = load_map(MAPS / "building_31.yaml")
+    blocked = car_blocked(grid, "blocked")
+    start, goal = far_poses(grid, blocked, 0.8, 1, seed=0)[0]
+    settings = CarSettings(SMALL_CAR, SMALL_RADIUS_M, reverse_weight=1.0)
+    t = time.perf_counter()
+    result = plan_car(grid, start, goal, settings, SMALL_LIMITS)
+    seconds = time.perf_counter() - t
+    _check_path(result, SMALL_RADIUS_M)
+    ref = ompl_car_length(
+        grid, blocked, SMALL_CAR, SMALL_RADIUS_M, start, goal, time_s=max(1.0, seconds)
+    )
+    assert ref["best"] is not None
+    assert result.length_m <= 1.1 * ref["best"]
+
+
 @pytest.mark.parametrize(
     ("name", "room_m"),
     [("stata_basement", 0.8), ("building_31", 0.8), ("turtlebot3_world", 0.6)],

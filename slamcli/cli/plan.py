@@ -42,9 +42,10 @@ x,y,radius,appear_s,vanish_s (vanish_s empty or inf: it stays). The robot replan
 appears on its path within 1.5 m ahead, and waits when no way leads around it.
 
 [bold]Car-like robots.[/] --motion ackermann plans for a robot that cannot turn in place: \
---min-turn-radius R, --footprint (a polygon 'x1,y1;x2,y2;...' in the robot's frame, x \
-forward, or a centred rectangle 'LENGTHxWIDTH'), headings in --start/--goal as x,y,yaw (yaw in \
-radians, 0 if left out), and --reverse/--no-reverse. The search is Hybrid-A* with Reeds-Shepp \
+--min-turn-radius R, --footprint (a polygon 'x1,y1;x2,y2;...' in the robot's frame, x forward, \
+or a centred rectangle 'LENGTHxWIDTH'), headings in --start/--goal as x,y,yaw (yaw in radians, \
+0 if left out), and --reverse/--no-reverse (--reverse-penalty: a metre backwards costs that \
+many metres forwards; 1 gives the shortest path). The search is Hybrid-A* with Reeds-Shepp \
 (Dubins without reversing) curves to the goal; the footprint is checked against the occupied \
 (and, with --unknown blocked, unknown) cells at every pose, at most half a cell apart, not as \
 an inflated circle. The path keeps its curvature within 1/R, stops at each gear change, is \
@@ -126,21 +127,6 @@ def parse_footprint_option(text: str) -> Any:
     return parse_footprint(text, "--footprint")
 
 
-def parse_xy(option: str, text: str) -> tuple[float, float]:
-    """``"x,y"`` (metres) -> two finite floats; ConfigError naming the option."""
-    parts = [p.strip() for p in text.split(",")]
-    try:
-        values = [float(p) for p in parts]
-    except ValueError:
-        values = []
-    if len(values) != 2 or not all(math.isfinite(v) for v in values):
-        raise ConfigError(
-            f"{option}: expected two numbers x,y in metres, got {text!r}",
-            hint=f"for example {option} -1.5,2.0",
-        )
-    return values[0], values[1]
-
-
 @boundary
 def plan(
     map: Annotated[
@@ -196,6 +182,14 @@ def plan(
         bool,
         typer.Option("--reverse/--no-reverse", help="Ackermann: whether it may drive backwards."),
     ] = True,
+    reverse_penalty: Annotated[
+        float,
+        typer.Option(
+            "--reverse-penalty",
+            help="Ackermann: cost of a metre driven backwards, in metres forwards (1 = "
+            "shortest path; 2 as Nav2's Smac planner).",
+        ),
+    ] = 2.0,
     wheelbase: Annotated[
         float | None,
         typer.Option(
@@ -268,6 +262,7 @@ def plan(
             footprint,
             min_turn_radius,
             reverse,
+            reverse_penalty,
             policy,
             (max_speed, max_yaw_rate, max_accel, max_lateral_accel, wheelbase),
             out,
@@ -316,6 +311,7 @@ def _plan_car(
     footprint: str | None,
     min_turn_radius: float,
     reverse: bool,
+    reverse_penalty: float,
     policy: str,
     limits_in: tuple[float, float, float, float, float | None],
     out: Path,
@@ -336,7 +332,9 @@ def _plan_car(
             "'x1,y1;x2,y2;...' in metres, x forward",
         )
     fp = parse_footprint_option(footprint)
-    settings = CarSettings(fp, min_turn_radius, reverse=reverse, unknown=policy).checked()
+    settings = CarSettings(
+        fp, min_turn_radius, reverse=reverse, unknown=policy, reverse_weight=reverse_penalty
+    ).checked()
     max_speed, max_yaw_rate, max_accel, max_lateral, wheelbase = limits_in
     length = float(fp.vertices[:, 0].max() - fp.vertices[:, 0].min())
     limits = CarLimits(

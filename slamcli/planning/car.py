@@ -65,7 +65,7 @@ class CarSettings:
         bin_m: lattice bin size in metres; None = max(resolution, radius / 8).
         step_m: primitive arc length; None = 1.5 bins.
         n_steer: curvatures per gear.
-        reverse_weight: cost factor of reversing.
+        reverse_weight: cost factor of reversing (2, as Nav2's Smac planner).
         switch_penalty_m: cost of a gear change, metres.
         max_expanded: expansion cap of the search.
     """
@@ -77,7 +77,7 @@ class CarSettings:
     bin_m: float | None = None
     step_m: float | None = None
     n_steer: int = 5
-    reverse_weight: float = 1.0
+    reverse_weight: float = 2.0
     switch_penalty_m: float = 1.0
     max_expanded: int = 3_000_000
 
@@ -87,6 +87,11 @@ class CarSettings:
                 f"--min-turn-radius must be a positive number of metres, got "
                 f"{self.min_turn_radius_m!r}",
                 hint="for example --min-turn-radius 1.2",
+            )
+        if not (math.isfinite(self.reverse_weight) and self.reverse_weight >= 1.0):
+            raise ConfigError(
+                f"--reverse-penalty must be a number >= 1, got {self.reverse_weight!r}",
+                hint="1 gives the shortest path; larger values prefer driving forwards",
             )
         if self.unknown not in ("blocked", "free"):
             raise ConfigError(
@@ -284,7 +289,7 @@ def plan_car(
         )
         if not wider.free(ends).all():
             continue
-        wide = search(settings.reverse, 8 * found.expanded + 1000, wider)
+        wide = search(settings.reverse, 4 * found.expanded + 20_000, wider)
         spent += wide.expanded
         if wide.status == FOUND:
             found = wide

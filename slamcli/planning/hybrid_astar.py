@@ -18,7 +18,9 @@ headings relative to the grid's u axis), over continuous poses ``(u, v, yaw)``:
   length to the goal ignoring obstacles.
 - **Analytic expansion.** From expanded nodes (every node near the goal, more rarely far from
   it) the shortest Reeds-Shepp/Dubins curve to the goal is tried; the first collision-free one
-  ends the search, so the goal pose is reached exactly.
+  that reverses at most :data:`TAIL_REVERSE_RADII` turn radii and makes no shuffle (a run of
+  one gear shorter than half a step between two gear changes) ends the search, so the goal pose
+  is reached exactly.
 
 :func:`shortcut_path` then replaces runs of primitives by shorter analytic curves when these are
 collision-free and keep at least the clearance the search path had (up to ``margin``): every
@@ -60,6 +62,9 @@ __all__ = [
 
 SEARCHING, FOUND, EXHAUSTED, LIMIT = 0, 1, 2, 3
 """Outcomes of :func:`_search_kernel`."""
+
+TAIL_REVERSE_RADII = 3.0
+"""An analytic curve to the goal may reverse at most this many turn radii in all."""
 
 _S, _L, _R = 0, 1, -1
 """Segment kinds of :mod:`slamcli.planning.curves`: the sign of the curvature."""
@@ -286,6 +291,12 @@ def _search_kernel(
             # The piece into this node and the curve's first run must not make a shuffle.
             if first != gear[i] and gear[i] != 0 and lengths.shape[0] > 0:
                 tidy = tidy and abs(lengths[0]) >= 0.5 * step
+            # Nor may the curve back up further than a manoeuvre needs (the lattice, which
+            # pays for reversing, takes the long ways).
+            backwards = 0.0
+            for k in range(lengths.shape[0]):
+                backwards -= min(lengths[k], 0.0)
+            tidy = tidy and backwards <= TAIL_REVERSE_RADII * radius
             if tidy and _curve_free(fp, x, y, t, kinds, lengths, radius, spacing):
                 return (
                     FOUND,
