@@ -550,3 +550,28 @@ def test_yaw_rotates_the_grid_about_its_origin() -> None:
     np.testing.assert_allclose(cell_to_world(grid, [0, 2]), [9.5, 22.5])
     np.testing.assert_allclose(cell_to_world(grid, [2, 0]), [7.5, 20.5])
     assert world_to_cell(grid, [[7.5, 20.5], [9.9, 23.1]]).tolist() == [[2, 0], [0, 3]]
+
+
+@pytest.mark.parametrize("mode", ["trinary", "scale", "raw"])
+@pytest.mark.parametrize("negate", [0, 1])
+@pytest.mark.parametrize("layout", ["grey.pgm", "grey.png", "colour.png"])
+def test_eight_bit_lookup_equals_the_per_pixel_rule(
+    tmp_path: Path, mode: str, negate: int, layout: str
+) -> None:
+    """8-bit maps are decoded through a table of every R+G+B sum: the same cells as Nav2's rule
+    applied pixel by pixel (``decode_cells`` on each pixel's quanta)."""
+    from slamcli.formats.occupancy.map_server_read import decode_cells
+
+    rng = np.random.default_rng(7)
+    if layout.startswith("grey"):
+        pixels = np.arange(256, dtype=np.uint8).reshape(16, 16)
+        sums = pixels.astype(np.float64) * 257.0 * 3.0
+    else:
+        pixels = rng.integers(0, 256, size=(20, 30, 3), dtype=np.uint8)
+        sums = pixels.astype(np.float64).sum(axis=2) * 257.0
+    yaml = BASE.replace("negate: 0", f"negate: {negate}") + f"mode: {mode}\n"
+    name = "m.pgm" if layout.endswith(".pgm") else "m.png"
+    grid = read_map_yaml(_write_map(tmp_path, pixels, yaml, name=name))
+    cells = decode_cells(sums, None, mode, negate, 0.25, 0.65)
+    expect = np.where(cells < 0, np.nan, cells.astype(np.float32) / np.float32(100.0))
+    np.testing.assert_array_equal(grid.prob, np.flipud(expect).astype(np.float32))

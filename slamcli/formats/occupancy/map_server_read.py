@@ -65,11 +65,20 @@ def read_map_yaml(path: str | Path) -> OccupancyGrid:
             the line), or a missing or undecodable image (names the image's path).
     """
     meta = _read_map_meta(Path(path))
-    rgb_sum, alpha, header = _read_image(meta)
-    cells = decode_cells(
-        rgb_sum, alpha, meta.mode, meta.negate, meta.free_thresh, meta.occupied_thresh
-    )
-    prob = _prob_from_cells(np.flipud(cells))
+    rgb_sum, alpha, header, levels = _read_image(meta)
+    if levels is not None:
+        # 8-bit pixels without alpha, the usual map: decode each possible sum of R, G and B
+        # (0..765, grey counted three times) once and look the pixels up.
+        sums = np.arange(766, dtype=np.float64) * 257.0
+        table = decode_cells(
+            sums, None, meta.mode, meta.negate, meta.free_thresh, meta.occupied_thresh
+        )
+        prob = _prob_from_cells(table)[np.flipud(levels)]
+    else:
+        cells = decode_cells(
+            rgb_sum, alpha, meta.mode, meta.negate, meta.free_thresh, meta.occupied_thresh
+        )
+        prob = _prob_from_cells(np.flipud(cells))
     source = {
         "format": "map_server",
         "yaml_text": meta.text,
@@ -208,8 +217,10 @@ def _negate(value: Any, fail: Any) -> int:
 
 def _read_image(
     meta: _MapYaml,
-) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, str | None]:
-    """The image as Q16 quanta: (sum of R, G, B (H, W), alpha (H, W) or None, P5 header)."""
+) -> tuple[NDArray[np.float64], NDArray[np.float64] | None, str | None, NDArray[np.uint16] | None]:
+    """The image as Q16 quanta: (sum of R, G, B (H, W), alpha (H, W) or None, P5 header), and,
+    for 8-bit pixels without alpha, their sums of R, G and B in 8-bit units (H, W) uint16
+    instead (the quanta are then left empty)."""
     img = meta.image_path
     if not img.is_file():
         raise FormatError(
@@ -222,13 +233,29 @@ def _read_image(
     if data is None:
         raise FormatError(img, f"map image {reason}")
     if data[:2] == b"P5":
-        grey, header = _decode_p5(img, data)
-        return grey * 3.0, None, header
-    return (*_decode_with_opencv(img, data), None)
+        raw, maxval, header = _p5_pixels(img, data)
+        if maxval == 255:
+            return np.zeros((0, 0)), None, header, raw.astype(np.uint16) * np.uint16(3)
+        # GraphicsMagick scales other depths to its quantum range, rounding half up.
+        grey = np.floor(raw.astype(np.float64) * MAX_RGB / maxval + 0.5)
+        return grey * 3.0, None, header, None
+    decoded, reason = decode_image(data)
+    if decoded is None:
+        raise FormatError(img, f"map image {reason}")
+    if decoded.dtype == np.uint8 and (decoded.ndim == 2 or decoded.shape[2] in (1, 3)):
+        if decoded.ndim == 2 or decoded.shape[2] == 1:
+            levels = decoded.reshape(decoded.shape[:2]).astype(np.uint16) * np.uint16(3)
+        else:
+            levels = decoded[..., 0].astype(np.uint16)
+            levels += decoded[..., 1]
+            levels += decoded[..., 2]
+        return np.zeros((0, 0)), None, None, levels
+    return (*_decode_with_opencv(img, decoded), None, None)
 
 
-def _decode_p5(path: Path, data: bytes) -> tuple[NDArray[np.float64], str | None]:
-    """Binary PGM as Q16 quanta (H, W), and its header text when it is 8-bit."""
+def _p5_pixels(path: Path, data: bytes) -> tuple[NDArray[Any], int, str | None]:
+    """A binary PGM's raw pixels (H, W) (uint8, or big-endian uint16) checked against its
+    header, its maxval, and the header text when it is 8-bit (maxval 255)."""
     width, height, maxval, offset = parse_p5_header(path, data)
     size = 1 if maxval < 256 else 2
     need = width * height * size
@@ -241,11 +268,7 @@ def _decode_p5(path: Path, data: bytes) -> tuple[NDArray[np.float64], str | None
     ).reshape(height, width)
     if int(raw.max(initial=0)) > maxval:
         raise FormatError(path, f"PGM pixel values exceed the header's maxval {maxval}")
-    if maxval == 255:
-        quanta = raw.astype(np.float64) * 257.0
-        return quanta, data[:offset].decode("latin-1")
-    # GraphicsMagick scales other depths to its quantum range, rounding half up.
-    return np.floor(raw.astype(np.float64) * MAX_RGB / maxval + 0.5), None
+    return raw, maxval, (data[:offset].decode("latin-1") if maxval == 255 else None)
 
 
 def parse_p5_header(path: Path, data: bytes) -> tuple[int, int, int, int]:
@@ -283,11 +306,9 @@ def parse_p5_header(path: Path, data: bytes) -> tuple[int, int, int, int]:
 
 
 def _decode_with_opencv(
-    path: Path, data: bytes
+    path: Path, img: NDArray[Any]
 ) -> tuple[NDArray[np.float64], NDArray[np.float64] | None]:
-    img, reason = decode_image(data)
-    if img is None:
-        raise FormatError(path, f"map image {reason}")
+    """Decoded pixels (OpenCV's channel order) as Q16 quanta: (R + G + B, alpha or None)."""
     if img.dtype == np.uint8:
         q = img.astype(np.float64) * 257.0
     elif img.dtype == np.uint16:
