@@ -12,14 +12,13 @@
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from slamcli.planning.car import CarPlanResult
-from slamcli.planning.output import PLAN_SCHEMA_VERSION, _csv, _map_record
+from slamcli.planning.output import PLAN_SCHEMA_VERSION, _csv, _map_record, write_timed
 from slamcli.rundir import RunDir
 
 CAR_OUTPUT_FILES = (
@@ -103,23 +102,19 @@ def write_car_plan(
     """
     from slamcli.planning.car_plot import plot_car_plan
 
-    t0 = time.perf_counter()
     path = np.column_stack((result.poses, result.direction.astype(np.float64), result.curvature))
-    run.write_text("path.csv", _csv("x,y,yaw,direction,curvature", path))
-    run.write_text("path_search.csv", _csv("x,y,yaw", result.search_poses))
-    run.write_text("trajectory.csv", _csv("t,x,y,theta,v,omega", result.trajectory))
-    run.write_text("tracked.csv", _csv("t,x,y,theta,v,omega", result.tracking.states))
-    t1 = time.perf_counter()
-    with run.atomic("plan.png") as tmp:
-        plot_car_plan(tmp, result)
-    t2 = time.perf_counter()
-    record = car_plan_record(result, map_file)
-    t3 = time.perf_counter()
-    timings = {**(timings_ms or {}), **result.timings_ms}
-    timings["plot"] = round((t2 - t1) * 1000.0, 3)
-    timings["write"] = round(((t1 - t0) + (t3 - t2)) * 1000.0, 3)
-    if started is not None:
-        timings["total"] = round((t3 - started) * 1000.0, 3)
-    record["timings_ms"] = timings
-    run.write_json("plan.json", record)
+    csvs = {
+        "path.csv": _csv("x,y,yaw,direction,curvature", path),
+        "path_search.csv": _csv("x,y,yaw", result.search_poses),
+        "trajectory.csv": _csv("t,x,y,theta,v,omega", result.trajectory),
+        "tracked.csv": _csv("t,x,y,theta,v,omega", result.tracking.states),
+    }
+    write_timed(
+        run,
+        csvs,
+        lambda tmp: plot_car_plan(tmp, result),
+        lambda: car_plan_record(result, map_file),
+        {**(timings_ms or {}), **result.timings_ms},
+        started,
+    )
     return [run.path / name for name in CAR_OUTPUT_FILES]

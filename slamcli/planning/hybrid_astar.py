@@ -537,28 +537,10 @@ def _shortcut_kernel(
                 if not piece_clear[a]:
                     all_clear = False
                     break
-            if all_clear:
-                ok = _curve_free(
-                    fp_margin,
-                    nodes[i, 0],
-                    nodes[i, 1],
-                    nodes[i, 2],
-                    kinds,
-                    lengths,
-                    radius,
-                    spacing,
-                )
-            else:
-                ok = _curve_free(
-                    fp,
-                    nodes[i, 0],
-                    nodes[i, 1],
-                    nodes[i, 2],
-                    kinds,
-                    lengths,
-                    radius,
-                    spacing,
-                )
+            test = fp_margin if all_clear else fp
+            ok = _curve_free(
+                test, nodes[i, 0], nodes[i, 1], nodes[i, 2], kinds, lengths, radius, spacing
+            )
             if ok:
                 nxt = j
                 break

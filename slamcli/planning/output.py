@@ -17,6 +17,7 @@ from __future__ import annotations
 import math
 import os
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -149,25 +150,51 @@ def write_plan(
     """
     from slamcli.planning.plot import plot_plan
 
+    csvs = {
+        "path.csv": _csv("x,y", result.grid_xy),
+        "path_smooth.csv": _csv("x,y", result.smooth_xy),
+        "trajectory.csv": _csv("t,x,y,theta,v,omega", result.trajectory),
+        "tracked.csv": _csv("t,x,y,theta,v,omega", result.tracking.states),
+    }
+    timings = {**(timings_ms or {}), **result.timings_ms}
+    write_timed(
+        run,
+        csvs,
+        lambda tmp: plot_plan(tmp, result),
+        lambda: plan_record(result, map_file),
+        timings,
+        started,
+    )
+    return [run.path / name for name in OUTPUT_FILES]
+
+
+def write_timed(
+    run: RunDir,
+    csvs: dict[str, str],
+    plot: Callable[[Path], object],
+    record: Callable[[], dict[str, Any]],
+    timings_ms: dict[str, float],
+    started: float | None,
+) -> None:
+    """Write the CSV texts, plan.png (``plot(path)``) and, last, plan.json (``record()``) with
+    ``timings_ms`` completed by ``plot`` (plan.png), ``write`` (the CSVs and the record) and,
+    when ``started`` (a ``time.perf_counter()`` value) is given, ``total``."""
     t0 = time.perf_counter()
-    run.write_text("path.csv", _csv("x,y", result.grid_xy))
-    run.write_text("path_smooth.csv", _csv("x,y", result.smooth_xy))
-    run.write_text("trajectory.csv", _csv("t,x,y,theta,v,omega", result.trajectory))
-    run.write_text("tracked.csv", _csv("t,x,y,theta,v,omega", result.tracking.states))
+    for name, text in csvs.items():
+        run.write_text(name, text)
     t1 = time.perf_counter()
     with run.atomic("plan.png") as tmp:
-        plot_plan(tmp, result)
+        plot(tmp)
     t2 = time.perf_counter()
-    record = plan_record(result, map_file)
+    content = record()
     t3 = time.perf_counter()
-    timings = {**(timings_ms or {}), **result.timings_ms}
+    timings = dict(timings_ms)
     timings["plot"] = _ms(t2 - t1)
     timings["write"] = _ms((t1 - t0) + (t3 - t2))
     if started is not None:
         timings["total"] = _ms(t3 - started)
-    record["timings_ms"] = timings
-    run.write_json("plan.json", record)
-    return [run.path / name for name in OUTPUT_FILES]
+    content["timings_ms"] = timings
+    run.write_json("plan.json", content)
 
 
 def _ms(seconds: float) -> float:
