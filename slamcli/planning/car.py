@@ -204,6 +204,43 @@ def _check_pose(
     )
 
 
+@dataclass
+class _Problem:
+    """One planning query in the grid frame (cells, radians): what every step shares."""
+
+    grid: OccupancyGrid
+    settings: CarSettings
+    blocked: NDArray[np.bool_]
+    checker: FootprintChecker
+    margin: FootprintChecker
+    start: tuple[float, float, float]
+    goal: tuple[float, float, float]
+    holonomic: NDArray[np.float64]
+    radius: float
+    step: float
+    bin_size: float
+
+    def search(self, reverse: bool, cap: int, test: FootprintChecker | None = None) -> Any:
+        from slamcli.planning.hybrid_astar import lattice_search
+
+        res = float(self.grid.resolution_m)
+        return lattice_search(
+            test or self.checker,
+            self.holonomic,
+            self.start,
+            self.goal,
+            radius=self.radius,
+            step=self.step,
+            bin_size=self.bin_size,
+            n_steer=self.settings.n_steer,
+            n_headings=N_HEADINGS,
+            reverse=reverse,
+            reverse_weight=self.settings.reverse_weight,
+            switch_penalty=self.settings.switch_penalty_m / res,
+            max_expanded=cap,
+        )
+
+
 def plan_car(
     grid: OccupancyGrid,
     start: tuple[float, float, float],
@@ -220,131 +257,31 @@ def plan_car(
     nearby), NoPathError when no path exists (saying whether reversing would find one),
     ConfigError for a bad setting.
     """
-    from slamcli.planning.hybrid_astar import (
-        FOUND,
-        LIMIT,
-        lattice_search,
-        sample_pieces,
-        segment_curvatures,
-        shortcut_path,
-    )
-    from slamcli.planning.search import grid_distances
-
     settings = settings.checked()
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    res = float(grid.resolution_m)
     blocked = car_blocked(grid, settings.unknown)
     checker = FootprintChecker(blocked, grid, settings.footprint)
-    margin_fp = settings.footprint.offset(SMOOTH_MARGIN_M)
-    checker_margin = FootprintChecker(blocked, grid, margin_fp, dist=checker.dist)
+    margin = FootprintChecker(
+        blocked, grid, settings.footprint.offset(SMOOTH_MARGIN_M), dist=checker.dist
+    )
     timings["costmap"] = _ms(t0)
     _check_pose(grid, checker, blocked, start, "--start", settings.unknown)
     _check_pose(grid, checker, blocked, goal, "--goal", settings.unknown)
-
     t1 = time.perf_counter()
-    # Cells where the reference point collides at any heading (the inscribed circle meets a
-    # blocked cell wherever in the cell it lies) are out of the holonomic heuristic's grid.
-    inscribed = checker.dist + math.sqrt(2.0) < checker.r_in
-    gs = _to_grid(grid, goal)
-    ss = _to_grid(grid, start)
-    h, w = blocked.shape
-    goal_cell = (min(max(int(gs[1]), 0), h - 1), min(max(int(gs[0]), 0), w - 1))
-    holo = grid_distances(blocked | inscribed, goal_cell)
+    problem = _problem(grid, settings, blocked, checker, margin, start, goal)
     timings["heuristic"] = _ms(t1)
-
-    radius = settings.min_turn_radius_m / res
-    bin_m = settings.bin_m or max(res, settings.min_turn_radius_m / 8.0)
-    step_m = settings.step_m or 1.5 * bin_m
     t2 = time.perf_counter()
-
-    def search(reverse: bool, cap: int, test: FootprintChecker = checker) -> Any:
-        return lattice_search(
-            test,
-            holo,
-            ss,
-            gs,
-            radius=radius,
-            step=step_m / res,
-            bin_size=bin_m / res,
-            n_steer=settings.n_steer,
-            n_headings=N_HEADINGS,
-            reverse=reverse,
-            reverse_weight=settings.reverse_weight,
-            switch_penalty=settings.switch_penalty_m / res,
-            max_expanded=cap,
-        )
-
-    found = search(settings.reverse, settings.max_expanded)
-    if found.status != FOUND:
-        _no_path(found, settings, search, LIMIT, FOUND)
-    # The same search with the footprint grown by a margin (the largest of CLEARANCE_LADDER_M
-    # that works within a few times the first search's effort), so the path keeps that
-    # clearance everywhere when the map allows it.
-    ends = np.asarray([start, goal], dtype=np.float64)
-    spent = found.expanded
-    for margin in CLEARANCE_LADDER_M:
-        wider = FootprintChecker(
-            blocked, grid, settings.footprint.offset(margin), dist=checker.dist
-        )
-        if not wider.free(ends).all():
-            continue
-        wide = search(settings.reverse, 4 * found.expanded + 20_000, wider)
-        spent += wide.expanded
-        if wide.status == FOUND:
-            found = wide
-            break
-    found = dataclasses.replace(found, expanded=spent)
+    found = _search(problem, np.asarray([start, goal], dtype=np.float64))
     timings["search"] = _ms(t2)
-
     t3 = time.perf_counter()
-    nodes = np.vstack((found.nodes, np.asarray([gs])))
-    step = step_m / res
-    # Piece a reaches node a: a lattice primitive, or (the last) the analytic tail.
-    pieces: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = [(np.zeros(0), np.zeros(0))]
-    for a in range(1, len(found.nodes)):
-        pieces.append((np.array([found.curvature[a]]), np.array([found.direction[a] * step])))
-    pieces.append((segment_curvatures(found.tail_kinds, radius), found.tail_lengths))
-    piece_len = np.array([float(np.abs(ln).sum()) for _, ln in pieces])
-    piece_clear = np.ones(len(nodes), dtype=bool)
-    for a in range(1, len(nodes)):
-        p = sample_pieces(nodes[a - 1], *pieces[a], 0.5)[0]
-        piece_clear[a] = bool(checker_margin.free_uv(p).all()) if len(p) else True
-    piece_gears = np.zeros((len(nodes), 3), dtype=np.int64)
-    for a in range(1, len(nodes)):
-        signs = np.sign(pieces[a][1][pieces[a][1] != 0]).astype(np.int64)
-        if len(signs):
-            piece_gears[a] = (signs[0], signs[-1], np.count_nonzero(np.diff(signs)))
-    keep = shortcut_path(
-        checker,
-        checker_margin,
-        nodes,
-        piece_len,
-        piece_clear,
-        piece_gears,
-        radius=radius,
-        reverse=settings.reverse,
-        min_piece=0.5 * step,
-    )
-    poses_g, gears, curv = _assemble(nodes, pieces, keep, radius, settings.reverse)
+    nodes = np.vstack((found.nodes, np.asarray([problem.goal])))
+    poses_g, gears, curv = _smooth(problem, found, nodes)
     timings["smooth"] = _ms(t3)
-
     t4 = time.perf_counter()
-    poses = np.empty_like(poses_g)
-    poses[:, :2] = uv_to_world(grid, poses_g[:, :2])
-    poses[:, 2] = np.angle(np.exp(1j * (poses_g[:, 2] + float(grid.origin_xy_yaw[2]))))
-    curvature = curv / res
-    free = checker.free(poses)
-    if not free.all():
-        bad = int(np.flatnonzero(~free)[0])
-        raise NoPathError(
-            f"internal check failed: pose {bad} of the path ({poses[bad, 0]:.3f}, "
-            f"{poses[bad, 1]:.3f}) touches a blocked cell",
-            hint="report this with the map and the command",
-        )
+    poses, curvature = _checked_world_path(problem, poses_g, curv)
     clearance = checker.clearance(poses)
     timings["check"] = _ms(t4)
-
     t5 = time.perf_counter()
     profile = time_parameterise_car(poses, gears, curvature, limits)
     trajectory = profile.sample_every(dt_s)
@@ -376,6 +313,126 @@ def plan_car(
         expanded=found.expanded,
         timings_ms=timings,
     )
+
+
+def _problem(
+    grid: OccupancyGrid,
+    settings: CarSettings,
+    blocked: NDArray[np.bool_],
+    checker: FootprintChecker,
+    margin: FootprintChecker,
+    start: tuple[float, float, float],
+    goal: tuple[float, float, float],
+) -> _Problem:
+    """The query in grid units, with its holonomic heuristic: the exact grid distance to the
+    goal over the cells where the reference point can be at some heading."""
+    from slamcli.planning.search import grid_distances
+
+    res = float(grid.resolution_m)
+    # Cells where the reference point collides at any heading (the inscribed circle meets a
+    # blocked cell wherever in the cell it lies) are out of the heuristic's grid.
+    inscribed = checker.dist + math.sqrt(2.0) < checker.r_in
+    gs = _to_grid(grid, goal)
+    h, w = blocked.shape
+    goal_cell = (min(max(int(gs[1]), 0), h - 1), min(max(int(gs[0]), 0), w - 1))
+    bin_m = settings.bin_m or max(res, settings.min_turn_radius_m / 8.0)
+    return _Problem(
+        grid=grid,
+        settings=settings,
+        blocked=blocked,
+        checker=checker,
+        margin=margin,
+        start=_to_grid(grid, start),
+        goal=gs,
+        holonomic=grid_distances(blocked | inscribed, goal_cell),
+        radius=settings.min_turn_radius_m / res,
+        step=(settings.step_m or 1.5 * bin_m) / res,
+        bin_size=bin_m / res,
+    )
+
+
+def _search(problem: _Problem, ends: NDArray[np.float64]) -> Any:
+    """The lattice path, then the same search with the footprint grown by a margin (the largest
+    of :data:`CLEARANCE_LADDER_M` that works within a few times the first search's effort), so
+    the path keeps that clearance everywhere when the map allows it."""
+    from slamcli.planning.hybrid_astar import FOUND, LIMIT
+
+    settings = problem.settings
+    found = problem.search(settings.reverse, settings.max_expanded)
+    if found.status != FOUND:
+        _no_path(found, settings, problem.search, LIMIT, FOUND)
+    spent = found.expanded
+    for margin in CLEARANCE_LADDER_M:
+        wider = FootprintChecker(
+            problem.blocked,
+            problem.grid,
+            settings.footprint.offset(margin),
+            dist=problem.checker.dist,
+        )
+        if not wider.free(ends).all():
+            continue
+        wide = problem.search(settings.reverse, 4 * found.expanded + 20_000, wider)
+        spent += wide.expanded
+        if wide.status == FOUND:
+            found = wide
+            break
+    return dataclasses.replace(found, expanded=spent)
+
+
+def _smooth(
+    problem: _Problem, found: Any, nodes: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.int8], NDArray[np.float64]]:
+    """Analytic shortcuts over the lattice path (``nodes``: its poses and the goal); the final
+    path's grid poses, gears and curvatures (1/cells)."""
+    from slamcli.planning.hybrid_astar import sample_pieces, segment_curvatures, shortcut_path
+
+    # Piece a reaches node a: a lattice primitive, or (the last) the analytic tail.
+    pieces: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = [(np.zeros(0), np.zeros(0))]
+    for a in range(1, len(found.nodes)):
+        pieces.append(
+            (np.array([found.curvature[a]]), np.array([found.direction[a] * problem.step]))
+        )
+    pieces.append((segment_curvatures(found.tail_kinds, problem.radius), found.tail_lengths))
+    piece_clear = np.ones(len(nodes), dtype=bool)
+    piece_gears = np.zeros((len(nodes), 3), dtype=np.int64)
+    for a in range(1, len(nodes)):
+        p = sample_pieces(nodes[a - 1], *pieces[a], 0.5)[0]
+        piece_clear[a] = bool(problem.margin.free_uv(p).all()) if len(p) else True
+        signs = np.sign(pieces[a][1][pieces[a][1] != 0]).astype(np.int64)
+        if len(signs):
+            piece_gears[a] = (signs[0], signs[-1], np.count_nonzero(np.diff(signs)))
+    keep = shortcut_path(
+        problem.checker,
+        problem.margin,
+        nodes,
+        np.array([float(np.abs(ln).sum()) for _, ln in pieces]),
+        piece_clear,
+        piece_gears,
+        radius=problem.radius,
+        reverse=problem.settings.reverse,
+        min_piece=0.5 * problem.step,
+    )
+    return _assemble(nodes, pieces, keep, problem.radius, problem.settings.reverse)
+
+
+def _checked_world_path(
+    problem: _Problem, poses_g: NDArray[np.float64], curv: NDArray[np.float64]
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The path in the world (poses, curvature 1/m), every pose tested with the exact
+    footprint test: a failure is an error, never a silent result."""
+    grid = problem.grid
+    poses = np.empty_like(poses_g)
+    poses[:, :2] = uv_to_world(grid, poses_g[:, :2])
+    poses[:, 2] = np.angle(np.exp(1j * (poses_g[:, 2] + float(grid.origin_xy_yaw[2]))))
+    free = problem.checker.free(poses)
+    if not free.all():
+        bad = int(np.flatnonzero(~free)[0])
+        raise NoPathError(
+            f"internal check failed: pose {bad} of the path ({poses[bad, 0]:.3f}, "
+            f"{poses[bad, 1]:.3f}) touches a blocked cell",
+            hint="report this with the map and the command",
+        )
+    return poses, curv / float(grid.resolution_m)
 
 
 def _assemble(
