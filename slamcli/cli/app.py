@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import gc
 import inspect
 import re
 from typing import NoReturn
@@ -137,10 +136,6 @@ def main() -> None:
             app()
         finally:
             _ignore_late_interrupts()
-            # Everything alive now lives until exit: keep the collector from walking it all
-            # once more at shutdown (a tenth of a second or more with numba and matplotlib
-            # loaded).
-            gc.freeze()
     except KeyboardInterrupt:
         # Ctrl-C between the error boundary and the line above: the command was interrupted.
         _exit_interrupted()
