@@ -356,7 +356,10 @@ class Tracking(Part):
         tracked = cur.inliers
         need_close = False
         if not self.rig.mono:
-            close = np.isfinite(cur.depth) & (cur.depth < 0.75 * self.rig.depth_max_m)
+            # ORB-SLAM's "close" points lie nearer than its depth threshold: for a stereo pair
+            # that is the near/far split itself; RGB-D keeps three quarters of its range.
+            near = self.rig.depth_max_m * (1.0 if self.rig.stereo else 0.75)
+            close = np.isfinite(cur.depth) & (cur.depth < near)
             tracked_close = int(np.count_nonzero(close & (cur.point_ids >= 0)))
             untracked_close = int(np.count_nonzero(close & (cur.point_ids < 0)))
             need_close = tracked_close < 100 and untracked_close > 70
