@@ -395,3 +395,27 @@ def test_car_plan_picture_colours_the_gears(tmp_path: Path) -> None:
     assert np.median(image[row - 2 : row + 3, col - 2 : col + 3, 0]) == BLOCKED_GREY
     # The legend names both gears even though the picture is mostly forward.
     assert canvas.legend_labels[:3] == ["footprint", "forward", "reverse"]
+
+
+def test_report_grid_keeps_one_cell_walls_when_shrunk() -> None:
+    """The matplotlib drawing the run reports use reduces cells the same way: a wall one cell
+    wide stays black in every row when four cells share a pixel."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    from slamcli.planning.plot import draw_grid, occupancy_colours
+
+    prob = np.zeros((200, 200), dtype=np.float32)
+    prob[:, 101] = 1.0
+    grid = OccupancyGrid(prob, 0.05, (0.0, 0.0, 0.0))
+    fig = Figure()
+    FigureCanvasAgg(fig)
+    ax = fig.subplots()
+    drawn = draw_grid(
+        ax, grid, lambda r, c: occupancy_colours(grid.prob, r, c), (0.0, 10.0, 0.0, 10.0), 50
+    )
+    image = np.asarray(drawn.get_array())
+    assert image.shape[1] == 50
+    grey = image[..., :3].min(axis=2)
+    assert (grey[:, 101 // 4] == 0).all()
+    assert (np.delete(grey, 101 // 4, axis=1) == 255).all()

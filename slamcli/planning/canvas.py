@@ -66,6 +66,19 @@ _GRID_KEEP = 0.82
 """Grid lines scale the pixels under them by this factor (white becomes light grey)."""
 
 
+def darkest_blocks(image: NDArray[np.uint8], block: int) -> NDArray[np.uint8]:
+    """An (h, w, c) uint8 image reduced in ``block`` x ``block`` squares (the last ones cut by
+    the edge), each channel the square's minimum: darker wins, so a one-cell wall shrunk to a
+    pixel stays as dark as it was, and a square of one colour keeps it exactly."""
+    if block <= 1:
+        return image
+    import cv2
+
+    kernel = np.ones((block, block), dtype=np.uint8)
+    pooled = cv2.erode(np.ascontiguousarray(image), kernel, anchor=(0, 0))
+    return np.ascontiguousarray(np.asarray(pooled, dtype=np.uint8)[::block, ::block])
+
+
 def nice_step(span: float, max_ticks: int) -> float:
     """The smallest step of the form 1, 2 or 5 x 10^k that cuts ``span`` (> 0, metres) into at
     most ``max_ticks`` (>= 1) intervals."""
@@ -240,10 +253,7 @@ class Canvas:
         kr = self.scale_px_per_m * res  # pixels per cell
         # Blocks at least one pixel wide, so the warp's sampling skips none of them.
         block = max(1, math.ceil(1.0 / kr - 1e-6))
-        if block > 1:
-            kernel = np.ones((block, block), dtype=np.uint8)
-            pooled = cv2.erode(np.ascontiguousarray(image), kernel, anchor=(0, 0))
-            image = np.ascontiguousarray(pooled[::block, ::block])
+        image = darkest_blocks(image, block)
         # Image pixel (j, i) is centred at cell coordinates u = c0 + block (j + 1/2),
         # v = r0 + block (i + 1/2); the world point there goes to plot pixel (col, row).
         c, s = math.cos(yaw), math.sin(yaw)

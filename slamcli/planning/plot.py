@@ -5,7 +5,7 @@ the plan command never imports matplotlib. The map is drawn from the cells in vi
 about one cell per pixel and placed with the origin's yaw, so a map of millions of cells costs
 no more to draw than a small one.
 
-:func:`draw_grid` draws a map in the same spirit (cells in view, block averages, the
+:func:`draw_grid` draws a map in the same spirit (cells in view, reduced with darker winning, the
 origin's yaw) on a matplotlib Axes, for the run reports (:mod:`slamcli.report`).
 """
 
@@ -95,14 +95,16 @@ def draw_grid(
 
     ``colours(rows, cols)`` gives the (h, w, 4) uint8 RGBA colours of a block of cells (row 0
     the lowest y); ``view`` is (xmin, xmax, ymin, ymax) in world metres; ``max_pixels`` about
-    the most pixels the view spans on screen. Only the cells in view are coloured, averaged
-    in blocks of whole cells so the image has about one pixel per screen pixel, and the image
+    the most pixels the view spans on screen. Only the cells in view are coloured, reduced
+    in blocks of whole cells (darker wins, so one-cell walls stay) so the image has about one
+    pixel per screen pixel, and the image
     is turned by the origin's yaw about the origin (the cell frame of
     :func:`slamcli.planning.costmap.world_to_uv`). Returns the AxesImage, or None when no cell
     is in view.
     """
-    import cv2
     from matplotlib.transforms import Affine2D
+
+    from slamcli.planning.canvas import darkest_blocks
 
     h, w = np.asarray(grid.prob).shape
     res = float(grid.resolution_m)
@@ -117,9 +119,10 @@ def draw_grid(
         return None
     image = np.ascontiguousarray(colours(slice(r0, r1), slice(c0, c1)), dtype=np.uint8)
     block = max(1, round(max(xmax - xmin, ymax - ymin) / res / max_pixels))
-    if block > 1:
-        size = (math.ceil((c1 - c0) / block), math.ceil((r1 - r0) / block))
-        image = np.asarray(cv2.resize(image, size, interpolation=cv2.INTER_AREA), dtype=np.uint8)
+    # Darker wins when cells are shrunk, so one-cell walls stay visible.
+    image = darkest_blocks(image, block)
+    c1 = c0 + image.shape[1] * block
+    r1 = r0 + image.shape[0] * block
     drawn = ax.imshow(
         image,
         origin="lower",
