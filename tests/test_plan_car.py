@@ -236,3 +236,8 @@ def test_cli_ackermann_option_errors(tmp_path: Path) -> None:
         app, ["plan", str(MAPS / "building_31.yaml"), "--start", "0,0,1", "--goal", "5,14"]
     )
     assert res.exit_code == 1 and "--motion ackermann" in res.output
+    same = ["--start", "0,0,0.5", "--goal", "0,0,0.5", "--footprint", "0.9x0.6"]
+    res = CliRunner().invoke(
+        app, [*base[:2], *same, "--motion", "ackermann", "--out", str(tmp_path / "b")]
+    )
+    assert res.exit_code == 1 and "the same pose" in res.output

@@ -268,6 +268,12 @@ def plan_car(
     timings["costmap"] = _ms(t0)
     _check_pose(grid, checker, blocked, start, "--start", settings.unknown)
     _check_pose(grid, checker, blocked, goal, "--goal", settings.unknown)
+    turn = abs((goal[2] - start[2] + math.pi) % (2 * math.pi) - math.pi)
+    if math.hypot(goal[0] - start[0], goal[1] - start[1]) < 1e-6 and turn < 1e-6:
+        raise ConfigError(
+            "--start and --goal are the same pose: there is nothing to plan",
+            hint="give a goal position or heading that differs from the start",
+        )
     t1 = time.perf_counter()
     problem = _problem(grid, settings, blocked, checker, margin, start, goal)
     timings["heuristic"] = _ms(t1)
