@@ -29,6 +29,7 @@ MAPS = ("stata_basement", "building_31")
 ROBOT_RADIUS_M = 0.2
 STAGES = (
     "read_map",
+    "kernels",
     "costmap",
     "search",
     "smooth",

@@ -283,6 +283,7 @@ def test_csv_text_is_what_savetxt_writes() -> None:
 
 STAGES = [
     "read_map",
+    "kernels",
     "costmap",
     "search",
     "smooth",

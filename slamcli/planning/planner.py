@@ -38,7 +38,7 @@ from slamcli.planning.costmap import (
     world_to_uv,
 )
 from slamcli.planning.obstacles import DynamicObstacle
-from slamcli.planning.search import SearchResult, grid_search
+from slamcli.planning.search import SearchResult, grid_search, load_kernels
 from slamcli.planning.smooth import (
     SegmentChecker,
     densify,
@@ -152,6 +152,9 @@ def plan(
     check_positive("dt_s", dt_s)
     tracker = tracker or TrackerSettings()
     timings: dict[str, float] = {}
+    tk = time.perf_counter()
+    load_kernels()
+    timings["kernels"] = _ms_since(tk)
     t0 = time.perf_counter()
     costmap = build_costmap(
         grid,

@@ -241,6 +241,15 @@ def _extra_arg(extra: NDArray[np.float64] | None) -> tuple[NDArray[np.float64], 
     return np.ascontiguousarray(extra), True
 
 
+def load_kernels() -> None:
+    """Load the compiled search (numba's one-time start-up and the cached kernels, or their
+    compilation on the first run after an install) with a search on a tiny grid, so that a
+    caller can time it apart from its searches."""
+    tiny = np.zeros((3, 3), dtype=bool)
+    grid_search(tiny, (0, 0), (2, 2))
+    grid_search(tiny, (0, 0), (2, 2), extra_cost=np.zeros((3, 3)))
+
+
 def grid_search(
     blocked: NDArray[np.bool_],
     start: tuple[int, int],
