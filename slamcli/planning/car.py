@@ -257,8 +257,13 @@ def plan_car(
     nearby), NoPathError when no path exists (saying whether reversing would find one),
     ConfigError for a bad setting.
     """
+    from slamcli.planning.search import load_kernels
+
     settings = settings.checked()
     timings: dict[str, float] = {}
+    tk = time.perf_counter()
+    load_kernels()
+    timings["kernels"] = _ms(tk)
     t0 = time.perf_counter()
     blocked = car_blocked(grid, settings.unknown)
     checker = FootprintChecker(blocked, grid, settings.footprint)
