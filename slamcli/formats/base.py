@@ -68,6 +68,19 @@ class StreamInfo:
     end_s: float | None = None
     detail: str = ""
 
+    @classmethod
+    def from_stamps(
+        cls, name: str, kind: str, stamps_ns: NDArray[np.int64], detail: str = ""
+    ) -> StreamInfo:
+        """A stream's count, mean rate (Hz), first and last stamps (s) from its stamps (ns)."""
+        n = int(stamps_ns.size)
+        if n == 0:
+            return cls(name, kind, 0, detail=detail)
+        span = (int(stamps_ns[-1]) - int(stamps_ns[0])) * 1e-9
+        rate = (n - 1) / span if n > 1 and span > 0 else None
+        start, end = float(stamps_ns[0]) * 1e-9, float(stamps_ns[-1]) * 1e-9
+        return cls(name, kind, n, rate, start, end, detail)
+
 
 @dataclass
 class SourceInfo:

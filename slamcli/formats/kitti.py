@@ -518,9 +518,11 @@ class KittiSource(SourceBase):
         rig = self.rig
         gt = self.groundtruth()
         pairs = f"{self.left_folder}/ + {self.right_folder}/"
-        streams = [_stream("pairs", "stereo", self.stamps_ns, pairs)]
+        streams = [StreamInfo.from_stamps("pairs", "stereo", self.stamps_ns, pairs)]
         if gt is not None:
-            streams.append(_stream("groundtruth", "pose", gt.stamps_ns, self._gt_name()))
+            streams.append(
+                StreamInfo.from_stamps("groundtruth", "pose", gt.stamps_ns, self._gt_name())
+            )
         frames_in_sequence = int(self.numbers[-1]) + 1
         details: dict[str, Any] = {
             "pair_folders": [self.left_folder, self.right_folder],
@@ -609,13 +611,3 @@ class KittiSource(SourceBase):
 def _named(names: list[str]) -> str:
     more = f", and {len(names) - NAMED} more" if len(names) > NAMED else ""
     return "; ".join(names[:NAMED]) + more
-
-
-def _stream(name: str, kind: str, stamps_ns: NDArray[np.int64], detail: str) -> StreamInfo:
-    n = int(stamps_ns.size)
-    if n == 0:
-        return StreamInfo(name, kind, 0, detail=detail)
-    start, end = float(stamps_ns[0]) * 1e-9, float(stamps_ns[-1]) * 1e-9
-    span = (int(stamps_ns[-1]) - int(stamps_ns[0])) * 1e-9
-    rate = (n - 1) / span if n > 1 and span > 0 else None
-    return StreamInfo(name, kind, n, rate, start, end, detail)

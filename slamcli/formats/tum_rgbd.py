@@ -339,15 +339,21 @@ class TumRgbdSource(RgbdFolderSource):
         problems: list[str] = []
         gt = self.groundtruth()
         accel = self._accelerometer
-        streams = [_stream("rgb", "image", self.rgb_list.stamps_ns, "rgb.txt")]
+        streams = [StreamInfo.from_stamps("rgb", "image", self.rgb_list.stamps_ns, "rgb.txt")]
         if self.has_depth:
-            streams.append(_stream("depth", "depth", self.depth_list.stamps_ns, "depth.txt"))
+            streams.append(
+                StreamInfo.from_stamps("depth", "depth", self.depth_list.stamps_ns, "depth.txt")
+            )
         else:
             problems.append("no depth.txt: colour only (monocular pipelines only)")
         if gt is not None:
-            streams.append(_stream("groundtruth", "pose", gt.stamps_ns, "groundtruth.txt"))
+            streams.append(
+                StreamInfo.from_stamps("groundtruth", "pose", gt.stamps_ns, "groundtruth.txt")
+            )
         if accel is not None:
-            streams.append(_stream("accelerometer", "imu", accel[0], "accelerometer.txt"))
+            streams.append(
+                StreamInfo.from_stamps("accelerometer", "imu", accel[0], "accelerometer.txt")
+            )
         n_rgb, n_depth, n_pairs = len(self.rgb_list), len(self.depth_list), len(self)
         details: dict[str, Any] = {
             "max_dt_s": self.max_dt,
@@ -447,13 +453,3 @@ class TumRgbdSource(RgbdFolderSource):
                 f"only {covered} of {len(self)} frames have a ground-truth pose within "
                 f"{GROUNDTRUTH_MAX_DT_S:g} s"
             )
-
-
-def _stream(name: str, kind: str, stamps_ns: NDArray[np.int64], detail: str) -> StreamInfo:
-    n = int(stamps_ns.size)
-    if n == 0:
-        return StreamInfo(name, kind, 0, detail=detail)
-    start, end = float(stamps_ns[0]) * 1e-9, float(stamps_ns[-1]) * 1e-9
-    span = (int(stamps_ns[-1]) - int(stamps_ns[0])) * 1e-9
-    rate = (n - 1) / span if n > 1 and span > 0 else None
-    return StreamInfo(name, kind, n, rate, start, end, detail)

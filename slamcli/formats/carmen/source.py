@@ -21,7 +21,6 @@ from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo, Strea
 from slamcli.formats.carmen.layout import (
     DEFAULT_MAX_RANGE_M,
     F64,
-    I64,
     LAYOUT_HINT,
     RANGE_MIN_M,
     below,
@@ -475,14 +474,16 @@ class CarmenSource(SourceBase):
         keywords = np.array(self._keywords, dtype=str)
         for keyword in sorted(set(keywords[self._laser].tolist())):
             sel = self._laser & (keywords == keyword)
-            streams.append(_stream(keyword, "scan", stamps[sel], self._scan_detail(sel)))
+            streams.append(
+                StreamInfo.from_stamps(keyword, "scan", stamps[sel], self._scan_detail(sel))
+            )
         kept = self._odometry_kept
         odometry = 0
         if self.odometry == "log":
             odometry = int(kept.sum())
             poses = int((kept & self._laser).sum())
             detail = f"{odometry - poses} ODOM lines, {poses} scans' poses"
-            streams.append(_stream("odometry", "odometry", stamps[kept], detail))
+            streams.append(StreamInfo.from_stamps("odometry", "odometry", stamps[kept], detail))
         gt = self.groundtruth()
         scans = int(self._laser.sum())
         if progress is not None:
@@ -599,20 +600,4 @@ def _fields_at(lines: _LINES, wanted: int, path: Path) -> list[str]:
     raise InputError(
         f"{path}:{wanted}: the file changed since it was opened (the line is gone)",
         hint="open the log again",
-    )
-
-
-def _stream(name: str, kind: str, stamps_ns: I64, detail: str) -> StreamInfo:
-    n = int(stamps_ns.size)
-    if n == 0:
-        return StreamInfo(name, kind, 0, detail=detail)
-    span = (int(stamps_ns[-1]) - int(stamps_ns[0])) * 1e-9
-    return StreamInfo(
-        name,
-        kind,
-        n,
-        (n - 1) / span if n > 1 and span > 0 else None,
-        float(stamps_ns[0]) * 1e-9,
-        float(stamps_ns[-1]) * 1e-9,
-        detail,
     )

@@ -402,9 +402,9 @@ class EurocSource(SourceBase):
         problems: list[str] = []
         rig = self.rig
         streams = [
-            _stream("cam0", "image", self.left_csv.stamps_ns, "mav0/cam0/data.csv"),
-            _stream("cam1", "image", self.right_csv.stamps_ns, "mav0/cam1/data.csv"),
-            _stream("stereo", "stereo", self.pair_stamps_ns, "rectified pairs"),
+            StreamInfo.from_stamps("cam0", "image", self.left_csv.stamps_ns, "mav0/cam0/data.csv"),
+            StreamInfo.from_stamps("cam1", "image", self.right_csv.stamps_ns, "mav0/cam1/data.csv"),
+            StreamInfo.from_stamps("stereo", "stereo", self.pair_stamps_ns, "rectified pairs"),
         ]
         details: dict[str, Any] = {
             "mav0": str(self.mav),
@@ -432,7 +432,9 @@ class EurocSource(SourceBase):
         self._imu_info(streams, details, problems)
         gt = self.groundtruth()
         if gt is not None:
-            streams.append(_stream("groundtruth", "pose", gt.stamps_ns, str(GROUNDTRUTH_CSV)))
+            streams.append(
+                StreamInfo.from_stamps("groundtruth", "pose", gt.stamps_ns, str(GROUNDTRUTH_CSV))
+            )
         else:
             beside = [n for n in GROUNDTRUTH_BESIDE if (self.mav.parent / n).is_file()]
             note = "ground truth: none in mav0" + (
@@ -471,7 +473,7 @@ class EurocSource(SourceBase):
         if imu is None:
             problems.append("no imu0/data.csv: no IMU frames")
         else:
-            streams.append(_stream("imu0", "imu", imu[0], "mav0/imu0/data.csv"))
+            streams.append(StreamInfo.from_stamps("imu0", "imu", imu[0], "mav0/imu0/data.csv"))
         if self.imu_sensor is not None:
             details["imu"] = {"rate_hz": self.imu_sensor.rate_hz} | self.imu_sensor.noise()
         elif imu is not None:
@@ -497,16 +499,6 @@ class EurocSource(SourceBase):
             if progress is not None:
                 progress(done, len(jobs))
         return wrong
-
-
-def _stream(name: str, kind: str, stamps_ns: NDArray[np.int64], detail: str) -> StreamInfo:
-    n = int(stamps_ns.size)
-    if n == 0:
-        return StreamInfo(name, kind, 0, detail=detail)
-    start, end = float(stamps_ns[0]) * 1e-9, float(stamps_ns[-1]) * 1e-9
-    span = (int(stamps_ns[-1]) - int(stamps_ns[0])) * 1e-9
-    rate = (n - 1) / span if n > 1 and span > 0 else None
-    return StreamInfo(name, kind, n, rate, start, end, detail)
 
 
 __all__ = [
