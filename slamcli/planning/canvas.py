@@ -66,6 +66,26 @@ _GRID_KEEP = 0.82
 """Grid lines scale the pixels under them by this factor (white becomes light grey)."""
 
 
+def cells_in_view(
+    grid: OccupancyGrid, view: tuple[float, float, float, float]
+) -> tuple[int, int, int, int] | None:
+    """(r0, r1, c0, c1): the block of the grid's cells (rows r0..r1-1, columns c0..c1-1) that
+    covers ``view`` = (xmin, xmax, ymin, ymax) world metres with the origin's yaw, plus a cell
+    of margin; None when no cell is in view."""
+    from slamcli.planning.costmap import world_to_uv
+
+    h, w = np.asarray(grid.prob).shape
+    xmin, xmax, ymin, ymax = view
+    corners = world_to_uv(grid, [[xmin, ymin], [xmax, ymin], [xmin, ymax], [xmax, ymax]])
+    c0 = max(math.floor(corners[:, 0].min()) - 1, 0)
+    r0 = max(math.floor(corners[:, 1].min()) - 1, 0)
+    c1 = min(math.ceil(corners[:, 0].max()) + 1, w)
+    r1 = min(math.ceil(corners[:, 1].max()) + 1, h)
+    if c0 >= c1 or r0 >= r1:
+        return None
+    return r0, r1, c0, c1
+
+
 def darkest_blocks(image: NDArray[np.uint8], block: int) -> NDArray[np.uint8]:
     """An (h, w, c) uint8 image reduced in ``block`` x ``block`` squares (the last ones cut by
     the edge), each channel the square's minimum: darker wins, so a one-cell wall shrunk to a
@@ -231,19 +251,13 @@ class Canvas:
         """
         import cv2
 
-        from slamcli.planning.costmap import world_to_uv
-
-        h, w = np.asarray(grid.prob).shape
         res = float(grid.resolution_m)
         x0, y0, yaw = (float(v) for v in grid.origin_xy_yaw)
-        xmin, xmax, ymin, ymax = self.view
-        corners = world_to_uv(grid, [[xmin, ymin], [xmax, ymin], [xmin, ymax], [xmax, ymax]])
-        c0 = max(math.floor(corners[:, 0].min()) - 1, 0)
-        r0 = max(math.floor(corners[:, 1].min()) - 1, 0)
-        c1 = min(math.ceil(corners[:, 0].max()) + 1, w)
-        r1 = min(math.ceil(corners[:, 1].max()) + 1, h)
-        if c0 >= c1 or r0 >= r1:
+        xmin, ymax = self.view[0], self.view[3]
+        window = cells_in_view(grid, self.view)
+        if window is None:
             return
+        r0, r1, c0, c1 = window
         image = np.asarray(colours(slice(r0, r1), slice(c0, c1)), dtype=np.uint8)
         if image.shape[2] == 3:
             rgba = np.empty((*image.shape[:2], 4), dtype=np.uint8)

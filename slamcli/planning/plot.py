@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from numpy.typing import NDArray
 
-from slamcli.planning.costmap import map_bounds, world_to_uv
+from slamcli.planning.costmap import map_bounds
 from slamcli.planning.planner import PlanResult
 from slamcli.types import OccupancyGrid
 
@@ -104,19 +104,15 @@ def draw_grid(
     """
     from matplotlib.transforms import Affine2D
 
-    from slamcli.planning.canvas import darkest_blocks
+    from slamcli.planning.canvas import cells_in_view, darkest_blocks
 
-    h, w = np.asarray(grid.prob).shape
     res = float(grid.resolution_m)
     x0, y0, yaw = (float(v) for v in grid.origin_xy_yaw)
     xmin, xmax, ymin, ymax = view
-    corners = world_to_uv(grid, [[xmin, ymin], [xmax, ymin], [xmin, ymax], [xmax, ymax]])
-    c0 = max(math.floor(corners[:, 0].min()) - 1, 0)
-    r0 = max(math.floor(corners[:, 1].min()) - 1, 0)
-    c1 = min(math.ceil(corners[:, 0].max()) + 1, w)
-    r1 = min(math.ceil(corners[:, 1].max()) + 1, h)
-    if c0 >= c1 or r0 >= r1:
+    window = cells_in_view(grid, view)
+    if window is None:
         return None
+    r0, r1, c0, c1 = window
     image = np.ascontiguousarray(colours(slice(r0, r1), slice(c0, c1)), dtype=np.uint8)
     block = max(1, round(max(xmax - xmin, ymax - ymin) / res / max_pixels))
     # Darker wins when cells are shrunk, so one-cell walls stay visible.
