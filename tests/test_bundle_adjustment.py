@@ -167,6 +167,30 @@ def test_a_point_behind_the_cameras_is_an_outlier(clean: Scene) -> None:
     assert centre.max() < 0.005
 
 
+def test_points_seen_once_are_kept_and_do_not_stop_the_solve(clean: Scene) -> None:
+    # Points 0-9 keep one observation each (a monocular point whose other views were culled);
+    # point 10 keeps one left observation plus its stereo depth (two rows, so it is solved).
+    first = np.r_[True, clean.obs_point[1:] != clean.obs_point[:-1]]
+    keep = (clean.obs_point >= 11) | ((clean.obs_point < 11) & first)
+    scene = replace(
+        clean,
+        obs_frame=clean.obs_frame[keep],
+        obs_point=clean.obs_point[keep],
+        obs_uv=clean.obs_uv[keep],
+        obs_sigma=clean.obs_sigma[keep],
+    )
+    depth = np.full(scene.obs_point.size, np.nan)
+    row10 = int(np.flatnonzero(scene.obs_point == 10)[0])
+    pose = scene.truth_poses[scene.obs_frame[row10]]
+    depth[row10] = (pose[:3, :3] @ scene.truth_points[10] + pose[:3, 3])[2]
+    res = solve(scene, obs_depth=depth)
+    assert np.array_equal(res.points[:10], scene.points[:10])
+    assert not np.array_equal(res.points[10], scene.points[10])
+    free = ~scene.fixed
+    centre, _ = pose_errors(res.cam_from_world[free], scene.truth_poses[free])
+    assert centre.max() < 0.005
+
+
 def test_sigmas_weight_the_observations() -> None:
     """Half the observations get 5 px of noise and say so: honouring the sigmas beats ignoring
     them."""

@@ -200,8 +200,11 @@ def _refine(
     free_p = observed_p & ~prob.fixed_points
     if not (free_f.any() or free_p.any()):
         return prob.poses.copy(), prob.points.copy(), 0
+    solved = _seen_twice(prob)
+    if solved.obs_point.size == 0:
+        return prob.poses.copy(), prob.points.copy(), 0
     poses, pts, iterations = _solve_colmap(
-        prob, fixed_f & observed_f, robust_px, robust_loss, max_iterations
+        solved, fixed_f & observed_f, robust_px, robust_loss, max_iterations
     )
     # COLMAP keeps a pose as a quaternion, and the matrix round trip changes the last bits:
     # fixed and unobserved frames (and points) are handed back as they came.
@@ -216,6 +219,24 @@ def _refine(
     ):
         poses, pts = _restore_scale(prob.poses, poses, pts, fixed_f & observed_f, free_f)
     return poses, pts, iterations
+
+
+def _seen_twice(prob: _Problem) -> _Problem:
+    """The problem without the observations of points observed once (by one camera of one
+    keyframe): such a point is free along its ray, and COLMAP refuses a track of one."""
+    from dataclasses import replace
+
+    keep = np.bincount(prob.obs_point, minlength=prob.points.shape[0])[prob.obs_point] >= 2
+    if keep.all():
+        return prob
+    return replace(
+        prob,
+        obs_frame=prob.obs_frame[keep],
+        obs_point=prob.obs_point[keep],
+        obs_uv=prob.obs_uv[keep],
+        obs_sigma=prob.obs_sigma[keep],
+        right=None if prob.right is None else prob.right[keep],
+    )
 
 
 def _fold_right(chi2: F64, right_of: I64, m: int) -> F64:
