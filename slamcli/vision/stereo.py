@@ -15,9 +15,10 @@ at the window's edge, whose parabola is flat, or whose offset is more than a pix
 so are matches whose SAD is above ``1.5 * 1.4`` times the median SAD of the pair (ORB-SLAM's
 robust outlier rule).
 
-Candidates are gathered without a per-keypoint loop: right keypoints are sorted by pyramid
-level and row, and each left keypoint's row band is two binary searches per level it may pair
-with. Everything is deterministic: ties go to the lower index.
+The pairing and the refinement are compiled with numba (:mod:`slamcli.vision._stereo_kernels`,
+imported on the first call, so importing this module stays cheap; the kernels release the GIL,
+so matching can run on a thread beside tracking). The pyramid levels are OpenCV resizes of the
+full images. Everything is deterministic: ties go to the lower index.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError, InputError
 from slamcli.types import StereoRig
 from slamcli.vision.features import Features
-from slamcli.vision.matching import TH_HIGH, TH_LOW, hamming
+from slamcli.vision.matching import TH_HIGH, TH_LOW
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
@@ -122,7 +123,8 @@ def match_stereo(
         One entry per left keypoint; depth is ``fx * baseline / (u_left - u_right)``.
 
     Raises:
-        InputError: the images differ in size or are not uint8 grey or RGB.
+        InputError: the images differ in size or are not uint8 grey or RGB; a feature set's
+            arrays disagree in length, or the two sets' descriptors differ in length.
         ConfigError: a setting is out of range.
     """
     _check_settings(settings)
@@ -132,14 +134,21 @@ def match_stereo(
             f"stereo images differ in size: left {grey_l.shape}, right {grey_r.shape}",
             hint="pass the two rectified images of one pair",
         )
+    _check_features(left, "left")
+    _check_features(right, "right")
     n = len(left)
     if n == 0 or len(right) == 0:
         return StereoMatches.unmatched(n)
+    if left.descriptors.shape[1] != right.descriptors.shape[1]:
+        raise InputError(
+            f"stereo descriptors differ in length: left {left.descriptors.shape[1]} bytes, "
+            f"right {right.descriptors.shape[1]}",
+            hint="extract the features of both images with the same settings",
+        )
     fx_b = rig.camera.fx * rig.baseline_m
     min_depth = rig.baseline_m if settings.min_depth_m is None else settings.min_depth_m
     max_disp = fx_b / min_depth
-    il, ir = _candidates(left, right, max_disp, settings)
-    il, ir = _best_by_descriptor(left, right, il, ir, settings.max_hamming)
+    il, ir = _descriptor_pairs(left, right, max_disp, settings)
     n_descriptor = int(il.size)
     u_r, sad, ok = _refine(left, right, il, ir, grey_l, grey_r, settings)
     disparity = left.keypoints[il, 0].astype(np.float64) - u_r
@@ -178,6 +187,20 @@ def _check_settings(s: StereoSettings) -> None:
             )
 
 
+def _check_features(f: Features, which: str) -> None:
+    """Raise InputError unless ``f``'s arrays hold one row per keypoint (the compiled
+    kernels index them without bounds checks)."""
+    n = f.keypoints.shape[0] if f.keypoints.ndim == 2 else -1
+    shapes = (f.keypoints.shape, f.octaves.shape, f.descriptors.shape[:1], f.descriptors.ndim)
+    if shapes != ((n, 2), (n,), (n,), 2):
+        raise InputError(
+            f"{which} stereo features: expected keypoints (N, 2), octaves (N,) and "
+            f"descriptors (N, B), found {f.keypoints.shape}, {f.octaves.shape} and "
+            f"{f.descriptors.shape}",
+            hint="pass the Features that extract_orb returns, or a select() of them",
+        )
+
+
 def _grey(image: NDArray[Any], which: str) -> NDArray[np.uint8]:
     img = np.asarray(image)
     if img.dtype != np.uint8 or not (img.ndim == 2 or (img.ndim == 3 and img.shape[2] == 3)):
@@ -193,68 +216,45 @@ def _grey(image: NDArray[Any], which: str) -> NDArray[np.uint8]:
     return img
 
 
-def _candidates(
+def _descriptor_pairs(
     left: Features, right: Features, max_disp: float, s: StereoSettings
 ) -> tuple[I64, I64]:
-    """(left, right) index pairs: same row band, disparity in [0, max_disp], octaves within
-    one level."""
-    ul = left.keypoints[:, 0].astype(np.float64)
-    vl = left.keypoints[:, 1].astype(np.float64)
-    ur = right.keypoints[:, 0].astype(np.float64)
-    vr = right.keypoints[:, 1].astype(np.float64)
-    ol = left.octaves.astype(np.int64)
-    orr = right.octaves.astype(np.int64)
-    # Right keypoints by (octave, row): each octave is one sorted run of rows.
-    order = np.lexsort((np.arange(orr.size), vr, orr))
-    o_sorted, v_sorted = orr[order], vr[order]
-    pairs_l: list[I64] = []
-    pairs_r: list[I64] = []
-    for level in np.unique(orr):
-        lo_run, hi_run = np.searchsorted(o_sorted, [level, level + 1])
-        rows = v_sorted[lo_run:hi_run]
-        who = np.flatnonzero(np.abs(ol - level) <= 1)
-        if who.size == 0:
-            continue
-        band = s.band_px * s.scale ** float(level)
-        lo = lo_run + np.searchsorted(rows, vl[who] - band, side="left")
-        hi = lo_run + np.searchsorted(rows, vl[who] + band, side="right")
-        counts = hi - lo
-        total = int(counts.sum())
-        if total == 0:
-            continue
-        offs = np.arange(total) - np.repeat(np.cumsum(counts) - counts, counts)
-        pairs_l.append(np.repeat(who, counts))
-        pairs_r.append(order[np.repeat(lo, counts) + offs])
-    if not pairs_l:
-        return np.zeros(0, np.int64), np.zeros(0, np.int64)
-    cl, cr = np.concatenate(pairs_l), np.concatenate(pairs_r)
-    disp = ul[cl] - ur[cr]
-    ok = (disp >= 0.0) & (disp <= max_disp)
-    return cl[ok], cr[ok]
+    """(left, right) index pairs, in increasing left index: each left keypoint's closest
+    candidate (same row band, disparity in [0, max_disp], octaves within one level) below
+    ``s.max_hamming``; each right keypoint kept by the closest left one claiming it (ties: lower
+    index)."""
+    from slamcli.vision import _stereo_kernels as kernels
+
+    oct_r = right.octaves.astype(np.int64)
+    lowest, highest = int(oct_r.min()), int(oct_r.max())
+    # Python's float power, level by level: the band edges must not move by a bit.
+    bands = np.array(
+        [s.band_px * s.scale ** float(level) for level in range(lowest, highest + 1)], np.float64
+    )
+    return kernels.descriptor_pairs(
+        left.keypoints[:, 0].astype(np.float64),
+        left.keypoints[:, 1].astype(np.float64),
+        left.octaves.astype(np.int64),
+        _words(left.descriptors),
+        right.keypoints[:, 0].astype(np.float64),
+        right.keypoints[:, 1].astype(np.float64),
+        oct_r,
+        _words(right.descriptors),
+        lowest,
+        bands,
+        max_disp,
+        float(s.max_hamming),
+    )
 
 
-def _best_by_descriptor(
-    left: Features, right: Features, cl: I64, cr: I64, max_hamming: int
-) -> tuple[I64, I64]:
-    """Each left keypoint's closest candidate below ``max_hamming``; each right keypoint kept
-    by the closest left one claiming it (ties: lower index)."""
-    if cl.size == 0:
-        return cl, cr
-    dist = hamming(left.descriptors[cl], right.descriptors[cr])
-    n_l, n_r = len(left) + 1, len(right) + 1
-    # One sort key per ordering: (left, distance, right), then (right, distance, left).
-    order = np.argsort((cl * 257 + dist) * n_r + cr)
-    cl, cr, dist = cl[order], cr[order], dist[order]
-    first = np.r_[True, cl[1:] != cl[:-1]]
-    cl, cr, dist = cl[first], cr[first], dist[first]
-    good = dist < max_hamming
-    cl, cr, dist = cl[good], cr[good], dist[good]
-    order = np.argsort((cr * 257 + dist) * n_l + cl)
-    cl, cr = cl[order], cr[order]
-    first = np.r_[True, cr[1:] != cr[:-1]]
-    cl, cr = cl[first], cr[first]
-    back = np.argsort(cl, kind="stable")
-    return cl[back], cr[back]
+def _words(descriptors: NDArray[np.uint8]) -> NDArray[np.uint64]:
+    """(N, B) uint8 descriptors as (N, ceil(B / 8)) uint64 words, zero-padded (which adds no
+    bits to a Hamming distance)."""
+    d = np.ascontiguousarray(descriptors, dtype=np.uint8)
+    pad = -d.shape[1] % 8
+    if pad:
+        d = np.pad(d, ((0, 0), (0, pad)))
+    return d.view(np.uint64)
 
 
 def _pyramid(image: NDArray[np.uint8], levels: int, scale: float) -> list[NDArray[np.uint8]]:
@@ -281,56 +281,39 @@ def _refine(
 ) -> tuple[F64, F64, NDArray[np.bool_]]:
     """Sub-pixel right column (level-0 pixels), best SAD and validity of each pair, by SAD
     block matching along the row at the left keypoint's pyramid level."""
+    from slamcli.vision import _stereo_kernels as kernels
+
     m = il.size
-    w, reach = s.patch_radius_px, s.search_radius_px
-    side, span = 2 * w + 1, 2 * reach + 1
-    patch = np.zeros((m, side, side), np.float32)
-    strip = np.zeros((m, side, side + 2 * reach), np.float32)
-    ur0 = np.zeros(m, np.int64)
     ok = np.zeros(m, dtype=bool)
     if m == 0:
         return np.full(m, np.nan), np.full(m, np.inf), ok
     octave = left.octaves[il].astype(np.int64)
+    # numpy's power of the whole array, whose last bit can differ from a scalar power's: the
+    # sub-pixel columns (and so the depths) are products with it.
     factor = s.scale ** octave.astype(np.float64)
     levels = int(octave.max()) + 1
-    pyr_l = _pyramid(grey_l, levels, s.scale)
-    pyr_r = _pyramid(grey_r, levels, s.scale)
-    dy = np.arange(-w, w + 1)
-    dx_strip = np.arange(-w - reach, w + reach + 1)
+    pyr_l = _pyramid(np.ascontiguousarray(grey_l), levels, s.scale)
+    pyr_r = _pyramid(np.ascontiguousarray(grey_r), levels, s.scale)
+    u_l = left.keypoints[il, 0].astype(np.float64)
+    v_l = left.keypoints[il, 1].astype(np.float64)
+    u_r0 = right.keypoints[ir, 0].astype(np.float64)
+    u_r = np.empty(m, np.float64)
+    sad = np.empty(m, np.float64)
     for level in np.unique(octave):
-        sel = np.flatnonzero(octave == level)
-        img_l, img_r = pyr_l[level], pyr_r[level]
-        h_l, w_l = img_l.shape
-        ul = np.rint(left.keypoints[il[sel], 0] / factor[sel]).astype(np.int64)
-        vl = np.rint(left.keypoints[il[sel], 1] / factor[sel]).astype(np.int64)
-        ur = np.rint(right.keypoints[ir[sel], 0] / factor[sel]).astype(np.int64)
-        inside = (
-            (vl - w >= 0)
-            & (vl + w < h_l)
-            & (ul - w >= 0)
-            & (ul + w < w_l)
-            & (ur - w - reach >= 0)
-            & (ur + w + reach < w_l)
+        kernels.refine_level(
+            pyr_l[level],
+            pyr_r[level],
+            int(level),
+            octave,
+            factor,
+            u_l,
+            v_l,
+            u_r0,
+            int(s.patch_radius_px),
+            int(s.search_radius_px),
+            float(s.max_offset_px),
+            u_r,
+            sad,
+            ok,
         )
-        sel, ul, vl, ur = sel[inside], ul[inside], vl[inside], ur[inside]
-        rows = (vl[:, None] + dy[None, :])[:, :, None]  # (k, side, 1)
-        patch[sel] = img_l[rows, (ul[:, None] + dy[None, :])[:, None, :]]
-        strip[sel] = img_r[rows, (ur[:, None] + dx_strip[None, :])[:, None, :]]
-        ur0[sel] = ur
-        ok[sel] = True
-    # Each patch minus its centre pixel; windows[k, i]: the right patch shifted by i - reach.
-    patch -= patch[:, w : w + 1, w : w + 1]
-    cost = np.empty((m, span), np.float32)
-    for i in range(span):
-        window = strip[:, :, i : i + side]
-        cost[:, i] = np.abs(patch - (window - window[:, w : w + 1, w : w + 1])).sum(axis=(1, 2))
-    best = np.argmin(cost, axis=1)
-    k = np.arange(m)
-    b = np.clip(best, 1, span - 2)
-    d1, d2, d3 = (cost[k, b + j].astype(np.float64) for j in (-1, 0, 1))
-    denom = 2.0 * (d1 + d3 - 2.0 * d2)
-    flat = denom <= 0.0
-    delta = np.where(flat, 0.0, (d1 - d3) / np.where(flat, 1.0, denom))
-    ok &= (best > 0) & (best < span - 1) & ~flat & (np.abs(delta) <= s.max_offset_px)
-    u_r = factor * (ur0 + (best - reach) + delta)
-    return u_r, cost[k, best].astype(np.float64), ok
+    return u_r, sad, ok
