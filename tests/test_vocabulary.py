@@ -111,6 +111,44 @@ def test_words_bow_and_direct_index(
     assert np.array_equal(vocab.nodes(desc, vocab.levels), vocab.word_node[words])
 
 
+def _descend_by_hand(vocab: Vocabulary, desc: np.ndarray, level: int) -> list[int]:
+    """The node each descriptor reaches at ``level``: the nearest child centroid per level,
+    the first child on a tie, a leaf above ``level`` kept (one descriptor at a time)."""
+    bits = np.unpackbits(vocab.centroids, axis=1)
+    out = []
+    for d in np.unpackbits(desc, axis=1):
+        node = 0
+        for _ in range(level):
+            kids = [int(c) for c in vocab.children[node] if c >= 0]
+            if not kids:
+                break
+            dist = [int(np.count_nonzero(bits[c] != d)) for c in kids]
+            node = kids[dist.index(min(dist))]
+        out.append(node)
+    return out
+
+
+def test_descent_takes_the_nearest_child_and_the_first_on_a_tie(
+    small_vocab: Vocabulary, descriptors: dict[int, np.ndarray]
+) -> None:
+    rng = np.random.default_rng(3)
+    kids = small_vocab.children[0][small_vocab.children[0] >= 0]
+    between = small_vocab.centroids[kids[:4]].copy()
+    between[:, :4] = 0  # near, and often equally near, several first-level centroids
+    desc = np.concatenate(
+        [
+            descriptors[KEYFRAMES[7]][:300],
+            rng.integers(0, 256, (200, 32), dtype=np.uint8),
+            small_vocab.centroids[1:60],  # exactly on a node: distance 0 there
+            between,
+        ]
+    )
+    for level in range(small_vocab.levels + 1):
+        got = small_vocab.nodes(desc, level)
+        assert got.dtype == np.int32
+        assert got.tolist() == _descend_by_hand(small_vocab, desc, level)
+
+
 def test_score_identical_neighbour_and_unrelated(descriptors: dict[int, np.ndarray]) -> None:
     vocab = default_vocabulary()
     bows = {i: vocab.bow(d) for i, d in descriptors.items()}

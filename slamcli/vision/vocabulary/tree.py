@@ -115,6 +115,7 @@ class Vocabulary:
         self.trained_images = int(trained_images)
         self.trained_descriptors = int(trained_descriptors)
         self.seed = int(seed)
+        self._centroid_words: NDArray[np.uint64] | None = None
         leaf = (children < 0).all(axis=1)
         self.node_word = np.full(children.shape[0], -1, np.int32)
         self.node_word[leaf] = np.arange(int(leaf.sum()), dtype=np.int32)
@@ -129,10 +130,6 @@ class Vocabulary:
             if np.array_equal(level, self.node_level):
                 break
             self.node_level = level.astype(np.int32)
-        # Padding rows of -1 point at the leaf itself during descent, so a descriptor that has
-        # reached a leaf above the bottom level stays there.
-        self._next = np.where(children >= 0, children, np.arange(children.shape[0])[:, None])
-        self._next = self._next.astype(np.int32)
 
     @property
     def n_words(self) -> int:
@@ -151,22 +148,20 @@ class Vocabulary:
     # -- lookups ----------------------------------------------------------------------------
 
     def _descend(self, descriptors: U8, stop_level: int) -> I32:
-        """Node id reached at depth ``stop_level`` (or the leaf above it) per descriptor."""
+        """Node id reached at depth ``stop_level`` (or the leaf above it) per descriptor: at
+        each level the child with the nearest centroid (ties: the first child), compiled
+        (:func:`slamcli.vision._matching_kernels.descend`)."""
         desc = check_descriptors(descriptors)
-        node = np.zeros(desc.shape[0], np.int32)
         if desc.shape[0] == 0:
-            return node
-        for _ in range(stop_level):
-            kids = self._next[node]  # (N, k)
-            d = np.empty(kids.shape, np.int32)
-            for start in range(0, desc.shape[0], CHUNK):
-                sl = slice(start, start + CHUNK)
-                d[sl] = hamming(desc[sl, None, :], self.centroids[kids[sl]])
-            d[self.children[node] < 0] = DESCRIPTOR_BYTES * 8 + 1
-            at_leaf = self.node_word[node] >= 0
-            step = kids[np.arange(kids.shape[0]), d.argmin(axis=1)]
-            node = np.where(at_leaf, node, step).astype(np.int32)
-        return node
+            return np.zeros(0, np.int32)
+        from slamcli.vision import _matching_kernels as kernels
+
+        if self._centroid_words is None:
+            self._centroid_words = np.ascontiguousarray(self.centroids).view(np.uint64)
+        nodes: I32 = kernels.descend(
+            desc.view(np.uint64), self._centroid_words, self.children, self.node_word, stop_level
+        )
+        return nodes
 
     def words(self, descriptors: U8) -> I32:
         """Word id of each descriptor: (N, 32) uint8 -> (N,) int32 (N may be 0)."""
