@@ -104,6 +104,48 @@ def test_colour_images_come_out_rgb(encoding: str, pixels: np.ndarray, pad: int)
     _check_owned(rec.array)
 
 
+# Where each colour sits in a 2x2 cell of the mosaic, by the ROS encoding's name.
+BAYER = {"bayer_rggb8": "RGGB", "bayer_bggr8": "BGGR", "bayer_gbrg8": "GBRG", "bayer_grbg8": "GRBG"}
+
+
+@pytest.mark.parametrize("encoding", sorted(BAYER))
+@pytest.mark.parametrize("pad", [0, 3])
+def test_bayer_mosaics_are_demosaiced_to_their_colours(encoding: str, pad: int) -> None:
+    colour = {"R": 200, "G": 90, "B": 20}
+    mosaic = np.zeros((8, 10), np.uint8)
+    for k, c in enumerate(BAYER[encoding]):
+        mosaic[k // 2 :: 2, k % 2 :: 2] = colour[c]
+    rec = _via_ros2(_image_msg(encoding, mosaic, step=10 + pad), "sensor_msgs/msg/Image")
+    assert rec.kind == "rgb" and rec.array.shape == (8, 10, 3) and rec.array.dtype == np.uint8
+    # A flat colour demosaics to itself away from the border.
+    np.testing.assert_array_equal(rec.array[2:-2, 2:-2], np.broadcast_to([200, 90, 20], (4, 6, 3)))
+    _check_owned(rec.array)
+
+
+@pytest.mark.parametrize(
+    ("encoding", "code"),
+    [
+        ("yuv422", "COLOR_RGB2YUV_UYVY"),
+        ("uyvy", "COLOR_RGB2YUV_UYVY"),
+        ("yuv422_yuy2", "COLOR_RGB2YUV_YUY2"),
+        ("yuyv", "COLOR_RGB2YUV_YUY2"),
+    ],
+)
+def test_yuv422_images_come_out_rgb(encoding: str, code: str) -> None:
+    import cv2
+
+    # Pairs of equal pixels: 4:2:2 shares one chroma sample between two neighbours.
+    rgb = np.repeat(RNG.integers(40, 216, (6, 4, 3), dtype=np.uint8), 2, axis=1)
+    packed = cv2.cvtColor(rgb, getattr(cv2, code))
+    assert packed.shape == (6, 8, 2)
+    rec = _via_ros2(_image_msg(encoding, packed, step=20), "sensor_msgs/msg/Image")
+    assert rec.kind == "rgb" and rec.array.shape == (6, 8, 3)
+    assert np.abs(rec.array.astype(int) - rgb).max() <= 3  # YUV rounding
+    other = "yuv422_yuy2" if encoding in ("yuv422", "uyvy") else "yuv422"
+    swapped = _via_ros2(_image_msg(other, packed), "sensor_msgs/msg/Image")
+    assert np.abs(swapped.array.astype(int) - rgb).max() > 20  # the byte order matters
+
+
 @pytest.mark.parametrize("encoding", ["mono8", "8UC1"])
 def test_mono_image(encoding: str) -> None:
     gray = RGB[..., 1]
@@ -144,8 +186,8 @@ def test_zero_header_stamp_falls_back_to_log_time() -> None:
 
 def test_unknown_image_encoding_raises() -> None:
     msg = _image_msg("mono8", RGB[..., 0])
-    msg.encoding = "yuv422"
-    with pytest.raises(DecodeError, match=r"/cam/image.*'yuv422'"):
+    msg.encoding = "nv21"
+    with pytest.raises(DecodeError, match=r"/cam/image.*'nv21'"):
         _via_ros2(msg, "sensor_msgs/msg/Image", topic="/cam/image")
 
 

@@ -74,6 +74,17 @@ _RAW_ENCODINGS: dict[str, tuple[str, str, int, str | None]] = {
     "bgr8": ("rgb", "u1", 3, "COLOR_BGR2RGB"),
     "rgba8": ("rgb", "u1", 4, "COLOR_RGBA2RGB"),
     "bgra8": ("rgb", "u1", 4, "COLOR_BGRA2RGB"),
+    # Raw Bayer mosaics (ROS names the 2x2 pattern from the top-left pixel; OpenCV from the
+    # second row's second and third, hence the shifted names), demosaiced by OpenCV.
+    "bayer_rggb8": ("rgb", "u1", 1, "COLOR_BayerBG2RGB"),
+    "bayer_bggr8": ("rgb", "u1", 1, "COLOR_BayerRG2RGB"),
+    "bayer_gbrg8": ("rgb", "u1", 1, "COLOR_BayerGR2RGB"),
+    "bayer_grbg8": ("rgb", "u1", 1, "COLOR_BayerGB2RGB"),
+    # 4:2:2 YUV, two bytes per pixel: ROS's yuv422 is UYVY, yuv422_yuy2 is YUYV.
+    "yuv422": ("rgb", "u1", 2, "COLOR_YUV2RGB_UYVY"),
+    "uyvy": ("rgb", "u1", 2, "COLOR_YUV2RGB_UYVY"),
+    "yuv422_yuy2": ("rgb", "u1", 2, "COLOR_YUV2RGB_YUY2"),
+    "yuyv": ("rgb", "u1", 2, "COLOR_YUV2RGB_YUY2"),
     "mono8": ("mono", "u1", 1, None),
     "8uc1": ("mono", "u1", 1, None),
     "16uc1": ("depth", "u2", 1, None),
@@ -170,7 +181,8 @@ def decode_raw_image(
 
     Args:
         topic: for error messages.
-        encoding: ROS/Foxglove encoding (rgb8, bgr8, rgba8, bgra8, mono8, 8UC1, 16UC1, 32FC1).
+        encoding: ROS/Foxglove encoding (rgb8, bgr8, rgba8, bgra8, bayer_rggb8 and the other
+            three Bayer patterns, yuv422 / uyvy, yuv422_yuy2 / yuyv, mono8, 8UC1, 16UC1, 32FC1).
         width, height: pixels.
         step: bytes per row (>= width * bytes per pixel; 0 means unpadded rows).
         data: the pixel buffer (bytes or uint8 array).
@@ -184,7 +196,9 @@ def decode_raw_image(
     if spec is None:
         raise DecodeError(
             f"channel {topic}: image encoding {encoding!r} is not supported",
-            hint="supported encodings: rgb8, bgr8, rgba8, bgra8, mono8, 8UC1, 16UC1, 32FC1",
+            hint="supported encodings: rgb8, bgr8, rgba8, bgra8, bayer_rggb8, bayer_bggr8, "
+            "bayer_gbrg8, bayer_grbg8, yuv422 (uyvy), yuv422_yuy2 (yuyv), mono8, 8UC1, 16UC1, "
+            "32FC1",
         )
     kind, elem, channels, conversion = spec
     dtype = np.dtype(elem).newbyteorder(">" if big_endian else "<")
