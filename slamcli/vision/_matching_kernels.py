@@ -49,7 +49,7 @@ def _popcount(x: np.uint64) -> np.int64:
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _hamming(a: np.ndarray, i: int, b: np.ndarray, j: int) -> np.int64:
+def hamming_rows(a: np.ndarray, i: int, b: np.ndarray, j: int) -> np.int64:
     """Hamming distance (bits) between row ``i`` of words ``a`` and row ``j`` of words ``b``."""
     d = np.int64(0)
     for w in range(a.shape[1]):
@@ -177,7 +177,7 @@ def ratio_grouped(
         sd = _FAR
         for s in range(starts[c], starts[c + 1]):
             a = order[s]
-            d = _hamming(words_a, a, words_b, b)
+            d = hamming_rows(words_a, a, words_b, b)
             if d < bd or (d == bd and a < ba):
                 sd = bd
                 bd = d
@@ -235,7 +235,7 @@ def _scan(
         if not dx * dx + dy * dy <= r2:
             continue
         kk = order[s]
-        d = _hamming(point_words, p, words_sorted, s)
+        d = hamming_rows(point_words, p, words_sorted, s)
         if d < bd or (d == bd and kk < bk):
             sd, sk = bd, bk
             bd, bk = d, kk
@@ -408,7 +408,7 @@ def descend(
             for c in range(children.shape[1]):
                 child = children[node, c]
                 if child >= 0:
-                    d = _hamming(words, i, centroids, child)
+                    d = hamming_rows(words, i, centroids, child)
                     if d < best_d:
                         best_d = d
                         best = child

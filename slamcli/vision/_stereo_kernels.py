@@ -24,32 +24,16 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.vision._matching_kernels import hamming_rows
+
 I64 = NDArray[np.int64]
 F64 = NDArray[np.float64]
-
-_M1 = np.uint64(0x5555555555555555)
-_M2 = np.uint64(0x3333333333333333)
-_M4 = np.uint64(0x0F0F0F0F0F0F0F0F)
-_H01 = np.uint64(0x0101010101010101)
-_ONE = np.uint64(1)
-_TWO = np.uint64(2)
-_FOUR = np.uint64(4)
-_SHIFT = np.uint64(56)
 
 #: Rounded positions beyond this magnitude are outside any image (and their int64 arithmetic
 #: would overflow).
 _FAR = 2.0**62
 #: Rows within this magnitude have exact whole-row neighbours in float64.
 _EXACT = 2.0**52
-
-
-@numba.njit(cache=True, nogil=True)
-def _popcount(x: np.uint64) -> int:
-    """Number of set bits of a 64-bit word."""
-    x = x - ((x >> _ONE) & _M1)
-    x = (x & _M2) + ((x >> _TWO) & _M2)
-    x = (x + (x >> _FOUR)) & _M4
-    return int((x * _H01) >> _SHIFT)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -190,9 +174,7 @@ def _descriptor_pairs(
                 hi = first[k, int(np.floor(top) - y0) + 1]
             for t in range(lo, hi):
                 disp = u_l[i] - cols[t]
-                d = 0
-                for q in range(n_words):
-                    d += _popcount(words_l[i, q] ^ words[t, q])
+                d = hamming_rows(words_l, i, words, t)
                 key = d * n_r + order[t]
                 good = (
                     (disp >= 0.0)
