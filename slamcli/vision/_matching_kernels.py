@@ -245,6 +245,75 @@ def _scan(
 
 
 @numba.njit(cache=True, nogil=True)
+def _radius_range(radius: np.ndarray) -> tuple[float, float]:
+    """Smallest and largest search radius (float64); (NaN, NaN) when one is negative,
+    infinite or NaN."""
+    r_min = np.float64(radius[0])
+    r_max = np.float64(radius[0])
+    for p in range(radius.shape[0]):
+        r = np.float64(radius[p])
+        if not (r >= 0.0 and r < np.inf):
+            return np.nan, np.nan
+        r_min = min(r_min, r)
+        r_max = max(r_max, r)
+    return r_min, r_max
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _cell_xy(keypoints: np.ndarray, i: int, scalars: np.ndarray) -> tuple[np.int64, np.int64]:
+    """Grid column and row of keypoint ``i`` (``scalars``: corner x, corner y, cell side, in the
+    keypoints' dtype)."""
+    kx = _to_int64(np.floor((keypoints[i, 0] - scalars[0]) / scalars[2]))
+    ky = _to_int64(np.floor((keypoints[i, 1] - scalars[1]) / scalars[2]))
+    return kx, ky
+
+
+@numba.njit(cache=True, nogil=True)
+def _grid_size(keypoints: np.ndarray, scalars: np.ndarray) -> tuple[np.int64, np.int64]:
+    """Columns and rows of the grid that holds every keypoint (see :func:`_cell_xy`)."""
+    nx = np.int64(_INT64_MIN)
+    ny = np.int64(_INT64_MIN)
+    for i in range(keypoints.shape[0]):
+        kx, ky = _cell_xy(keypoints, i, scalars)
+        nx = max(nx, kx + 1)
+        ny = max(ny, ky + 1)
+    return nx, ny
+
+
+@numba.njit(cache=True, nogil=True)
+def _keypoint_grid(
+    keypoints: np.ndarray,
+    kp_words: np.ndarray,
+    kp_octaves: np.ndarray,
+    scalars: np.ndarray,
+    nx: np.int64,
+    ny: np.int64,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(order, starts, keypoints, words, octaves)``: the keypoints bucketed by grid cell
+    (:func:`_bucket`; a keypoint outside the grid is in none), and their pixels, descriptor
+    words and octaves in that order, so a window row reads consecutive memory."""
+    n = keypoints.shape[0]
+    cell_of = np.empty(n, np.int64)
+    for i in range(n):
+        kx, ky = _cell_xy(keypoints, i, scalars)
+        inside = 0 <= kx < nx and 0 <= ky < ny
+        cell_of[i] = ky * nx + kx if inside else -1
+    order, starts = _bucket(cell_of, nx * ny)
+    m = order.shape[0]
+    kp_sorted = np.empty((m, 2), keypoints.dtype)
+    words_sorted = np.empty((m, kp_words.shape[1]), np.uint64)
+    oct_sorted = np.empty(m, np.int64)
+    for s in range(m):
+        i = order[s]
+        kp_sorted[s, 0] = keypoints[i, 0]
+        kp_sorted[s, 1] = keypoints[i, 1]
+        for w in range(kp_words.shape[1]):
+            words_sorted[s, w] = kp_words[i, w]
+        oct_sorted[s] = kp_octaves[i]
+    return order, starts, kp_sorted, words_sorted, oct_sorted
+
+
+@numba.njit(cache=True, nogil=True)
 def by_projection(
     projected: np.ndarray,
     keypoints: np.ndarray,
@@ -290,14 +359,9 @@ def by_projection(
     n = keypoints.shape[0]
     p_count = projected.shape[0]
     none = np.zeros((0, 2), np.int64)
-    r_min = np.float64(radius[0])
-    r_max = np.float64(radius[0])
-    for p in range(p_count):
-        r = np.float64(radius[p])
-        if not (r >= 0.0 and r < np.inf):
-            return none, BAD_RADIUS
-        r_min = min(r_min, r)
-        r_max = max(r_max, r)
+    r_min, r_max = _radius_range(radius)
+    if np.isnan(r_min):
+        return none, BAD_RADIUS
     x0 = np.float64(_column_min(keypoints, 0))
     y0 = np.float64(_column_min(keypoints, 1))
     if np.isnan(x0) or np.isnan(y0) or x0 == -np.inf or y0 == -np.inf:
@@ -312,34 +376,12 @@ def by_projection(
     pt_scalars = np.empty(3, projected.dtype)
     pt_scalars[0], pt_scalars[1], pt_scalars[2] = x0, y0, cell
 
-    kx = np.empty(n, np.int64)
-    ky = np.empty(n, np.int64)
-    nx = np.int64(_INT64_MIN)
-    ny = np.int64(_INT64_MIN)
-    for i in range(n):
-        kx[i] = _to_int64(np.floor((keypoints[i, 0] - kp_scalars[0]) / kp_scalars[2]))
-        ky[i] = _to_int64(np.floor((keypoints[i, 1] - kp_scalars[1]) / kp_scalars[2]))
-        nx = max(nx, kx[i] + 1)
-        ny = max(ny, ky[i] + 1)
+    nx, ny = _grid_size(keypoints, kp_scalars)
     if np.float64(nx) * np.float64(ny) > _MAX_CELLS:
         return none, BAD_SPAN
-    cell_of = np.empty(n, np.int64)
-    for i in range(n):
-        inside = 0 <= kx[i] < nx and 0 <= ky[i] < ny
-        cell_of[i] = ky[i] * nx + kx[i] if inside else -1
-    order, starts = _bucket(cell_of, nx * ny)
-    # The keypoints' data in cell order, so a window row reads consecutive memory.
-    m = order.shape[0]
-    kp_sorted = np.empty((m, 2), keypoints.dtype)
-    words_sorted = np.empty((m, kp_words.shape[1]), np.uint64)
-    oct_sorted = np.empty(m, np.int64)
-    for s in range(m):
-        i = order[s]
-        kp_sorted[s, 0] = keypoints[i, 0]
-        kp_sorted[s, 1] = keypoints[i, 1]
-        for w in range(kp_words.shape[1]):
-            words_sorted[s, w] = kp_words[i, w]
-        oct_sorted[s] = kp_octaves[i]
+    order, starts, kp_sorted, words_sorted, oct_sorted = _keypoint_grid(
+        keypoints, kp_words, kp_octaves, kp_scalars, nx, ny
+    )
 
     best_k = np.full(p_count, -1, np.int64)
     best_d = np.zeros(p_count, np.int64)
