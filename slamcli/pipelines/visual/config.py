@@ -70,6 +70,14 @@ class VisualConfig:
     keyframe_max_frames: int = setting(
         10, help="a keyframe is made at least this often (frames)", min=1
     )
+    keyframe_max_seconds: float = setting(
+        0.5,
+        help="a keyframe is made at least this often (seconds of the input's stamps), so that "
+        "a slow camera (10 Hz) keeps keyframes as close as a fast one; whichever of this and "
+        "keyframe_max_frames comes first",
+        unit="s",
+        gt=0.0,
+    )
     local_window: int = setting(
         10, help="covisible keyframes optimised by local bundle adjustment", min=1, max=100
     )

@@ -8,8 +8,8 @@ relocalised against the keyframes of its map by place recognition and PnP. The l
 points of the keyframes that share points with the frame, and their best neighbours) is then
 searched by projection and the pose refined again. A keyframe is wanted as ORB-SLAM decides:
 when the frame tracks fewer than ``keyframe_track_ratio`` of the reference keyframe's
-well-seen points (RGB-D: also when too few near points are tracked), or
-``keyframe_max_frames`` frames have passed.
+well-seen points (RGB-D and stereo: also when too few near points are tracked), or
+``keyframe_max_frames`` frames or ``keyframe_max_seconds`` have passed.
 """
 
 from __future__ import annotations
@@ -364,7 +364,13 @@ class Tracking(Part):
             untracked_close = int(np.count_nonzero(close & (cur.point_ids < 0)))
             need_close = tracked_close < 100 and untracked_close > 70
         # Offline, local mapping is never busy: ORB-SLAM's "mapping idle" condition always
-        # holds, so a keyframe is made whenever tracking weakens, or after keyframe_max_frames.
+        # holds, so a keyframe is made whenever tracking weakens, or after keyframe_max_frames
+        # frames or keyframe_max_seconds (at 10 Hz, ten frames apart the keyframes of a turning
+        # camera share too few points to hold the map's scale and rotation together).
         weak = (tracked < ref_matches * ratio or need_close) and tracked > 15
-        overdue = cur.index - last_kf.frame >= self.config.keyframe_max_frames and tracked > 15
+        late = (
+            cur.index - last_kf.frame >= self.config.keyframe_max_frames
+            or cur.stamp_ns - last_kf.stamp_ns >= round(self.config.keyframe_max_seconds * 1e9)
+        )
+        overdue = late and tracked > 15
         return bool(weak or overdue)
