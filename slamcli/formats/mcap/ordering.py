@@ -97,6 +97,10 @@ class StreamPairer:
             cut = self._safe_cut(horizon)
             if cut is None and len(rgb) + len(depth) > FORCE_FLUSH:
                 cut = horizon
+                if rgb[0].stamp_ns >= cut and self._key("depth", depth[0]) >= cut:
+                    # Nothing is that old: one stream has stopped, and its last stamp holds the
+                    # horizon back. Settle what the other has buffered, up to its own newest.
+                    cut = max(newest) - self.max_dt
             if cut is None:
                 return []
         take_r = [r for r in rgb if cut is None or r.stamp_ns < cut]
