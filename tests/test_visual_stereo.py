@@ -89,19 +89,18 @@ def test_euroc_static_start_stays_within_5mm(euroc_run: RunOutcome) -> None:
     assert np.max(np.linalg.norm(pos - pos[0], axis=1)) < 0.005
 
 
-def test_keyframes_come_at_least_every_keyframe_max_seconds(
-    euroc_run: RunOutcome, tmp_path: Path
-) -> None:
+def test_keyframes_come_at_least_every_keyframe_max_seconds(tmp_path: Path) -> None:
     # The drone sits still: tracking never weakens, so only the time and frame limits make
     # keyframes. With the frame limit out of the way, the time limit alone keeps them coming.
-    made_by_frames = euroc_run.result.counts["keyframes_made"]
     config = VisualConfig(keyframe_max_frames=1000, keyframe_max_seconds=0.25)
-    outcome = run_pipeline(shared_path(*EUROC), "visual", tmp_path / "run", config=config)
+    outcome = run_pipeline(
+        shared_path(*EUROC), "visual", tmp_path / "run", config=config, max_frames=40
+    )
     stamps = outcome.result.trajectory.stamps_ns
     duration = (stamps[-1] - stamps[0]) * 1e-9
     made = outcome.result.counts["keyframes_made"]
     assert 0.75 * duration / 0.25 <= made - 1 <= duration / 0.25
-    assert made > made_by_frames  # every 10 frames at 20 Hz is every 0.5 s
+    assert made > stamps.size // 10 + 1  # what every 10 frames (0.5 s at 20 Hz) would make
 
 
 def test_stereo_runs_are_deterministic(euroc_run: RunOutcome, tmp_path: Path) -> None:
