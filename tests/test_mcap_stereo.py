@@ -70,6 +70,16 @@ class _Ros2:
         return self.t["std_msgs/msg/Header"](stamp=time, frame_id=frame_id)
 
     def image(self, topic: str, stamp_ns: int, frame_id: str, image: np.ndarray) -> None:
+        if topic.endswith("/compressed"):
+            # image_transport's compressed layout: "png" or "jpeg" after the topic's last word.
+            fmt = "png" if "png" in topic else "jpeg"
+            ok, buf = cv2.imencode(f".{fmt}", image)
+            assert ok
+            msg = self.t["sensor_msgs/msg/CompressedImage"](
+                header=self.header(stamp_ns, frame_id), format=fmt, data=buf.reshape(-1)
+            )
+            self.put(topic, stamp_ns, msg)
+            return
         h, w = image.shape[:2]
         encoding = "mono8" if image.ndim == 2 else "rgb8"
         msg = self.t["sensor_msgs/msg/Image"](
@@ -188,7 +198,10 @@ def _write(
             ):
                 w.image(topic, stamp, info.frame_id if info else "cam1", image)
                 if info is not None:
-                    w.camera_info(topic.rsplit("/", 1)[0] + "/camera_info", stamp, info)
+                    # /cam0/image_raw and /cam0/image_raw/compressed both sit beside
+                    # /cam0/camera_info.
+                    base = topic.removesuffix("/compressed")
+                    w.camera_info(base.rsplit("/", 1)[0] + "/camera_info", stamp, info)
         if truth is not None:
             for stamp, pose in zip(truth.stamps_ns, truth.world_from_body, strict=True):
                 w.pose("/groundtruth", int(stamp), pose)
@@ -263,6 +276,31 @@ def test_kitti_pairs_equal_the_folder_and_the_pair_is_chosen(kitti: _Kitti, tmp_
     assert info.camera is not None and info.camera.fx == pytest.approx(want.camera.fx)
     assert info.camera_source.startswith("already rectified")
     assert not any("RGB-D" in p for p in info.problems)
+
+
+@pytest.mark.parametrize("fmt", ["png", "jpeg"])
+def test_compressed_image_topics_pair_like_raw_ones(
+    kitti: _Kitti, tmp_path: Path, fmt: str
+) -> None:
+    # As ROS 2 recorders often keep cameras: image_transport's compressed topics only (the
+    # format is named in the topic here only so the test writer can tell which to encode).
+    topics = (f"/left/{fmt}/image_rect/compressed", f"/right/{fmt}/image_rect/compressed")
+    path = _write(tmp_path / f"{fmt}.mcap", kitti.pairs[:3], kitti.infos, kitti.tf, topics)
+    frames, source = _stereo(path)
+    assert [f.stamp_ns for f in frames] == [f.stamp_ns for f in kitti.frames[:3]]
+    assert source.stats.read == 3 and source.stats.skipped == 0
+    for got, exp in zip(frames, kitti.frames, strict=False):
+        for a, b in ((got.left, exp.left), (got.right, exp.right)):
+            assert a.shape == b.shape and a.dtype == np.uint8
+            if fmt == "png":
+                np.testing.assert_array_equal(a, b)
+            else:
+                assert np.abs(a.astype(float) - b).mean() < 2.0
+    assert frames[0].rig.baseline_m == pytest.approx(kitti.frames[0].rig.baseline_m, abs=1e-6)
+    with open_source(path) as again:
+        info = again.info()
+    assert (info.details["left_topic"], info.details["right_topic"]) == topics
+    assert info.camera_source.startswith("already rectified")
 
 
 def test_a_right_image_30_ms_late_still_pairs_at_10_hz(kitti: _Kitti, tmp_path: Path) -> None:
