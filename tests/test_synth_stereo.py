@@ -222,13 +222,48 @@ def test_colour_without_depth_equals_the_rgbd_render(world) -> None:
     )
 
 
+def test_a_slower_rate_flies_the_same_loop_with_an_imu_sample_on_every_pair(
+    world: stereo.StereoWorld,
+) -> None:
+    slow = stereo.build_stereo_world(FRAMES // 2, SIZE, BASELINE, seed=2, fps=10.0)
+    # The same loop in the same time: every second pose of the 20 Hz sequence, exactly.
+    np.testing.assert_array_equal(np.diff(slow.stamps_ns), 100_000_000)
+    stamps = slow.room.trajectory.stamps_ns
+    twice = stereo.build_stereo_world(FRAMES, SIZE, BASELINE, seed=2)
+    np.testing.assert_array_equal(stamps, twice.stamps_ns[::2])
+    np.testing.assert_allclose(slow.world_from_left(), twice.world_from_left()[::2], atol=1e-12)
+    assert slow.room.trajectory.path_length() < world.room.trajectory.path_length()
+    imu = slow.imu_track()
+    np.testing.assert_array_equal(np.diff(imu.stamps_ns), 5_000_000)
+    at_pairs = np.searchsorted(imu.stamps_ns, stamps)
+    np.testing.assert_array_equal(imu.stamps_ns[at_pairs], stamps)
+    np.testing.assert_allclose(
+        imu.world_from_body[at_pairs] @ slow.body_from_left, slow.world_from_left(), atol=1e-12
+    )
+    # The IMU sees the same motion as at 20 Hz where their samples meet.
+    fast = twice.imu_track()
+    common = np.intersect1d(imu.stamps_ns, fast.stamps_ns)
+    assert len(common) == len(imu.stamps_ns)
+    np.testing.assert_allclose(imu.gyro_radps, fast.gyro_radps[: len(common)], atol=1e-9)
+
+
 @pytest.mark.parametrize(
-    ("frames", "size", "baseline", "word"),
-    [(1, (64, 48), 0.1, "frames"), (4, (8, 48), 0.1, "size"), (4, (64, 48), 0.0, "baseline")],
+    ("frames", "size", "baseline", "fps", "word"),
+    [
+        (1, (64, 48), 0.1, 20.0, "frames"),
+        (4, (8, 48), 0.1, 20.0, "size"),
+        (4, (64, 48), 0.0, 20.0, "baseline"),
+        (4, (64, 48), 0.1, 30.0, "fps"),
+        (4, (64, 48), 0.1, 400.0, "fps"),
+        (4, (64, 48), 0.1, 0.0, "fps"),
+        (4, (64, 48), 0.1, float("nan"), "fps"),
+    ],
 )
-def test_bad_options_raise_config_errors(tmp_path, frames, size, baseline, word) -> None:
+def test_bad_options_raise_config_errors(tmp_path, frames, size, baseline, fps, word) -> None:
     with pytest.raises(ConfigError, match=word):
-        stereo.render_stereo_sequence(tmp_path / "x", frames=frames, size=size, baseline_m=baseline)
+        stereo.render_stereo_sequence(
+            tmp_path / "x", frames=frames, size=size, baseline_m=baseline, fps=fps
+        )
     assert not (tmp_path / "x").exists()
 
 
@@ -246,3 +281,18 @@ def test_cli_synth_stereo_writes_an_asl_folder(tmp_path: Path) -> None:
     assert again.exit_code == 1 and "not empty" in again.output
     bad = runner.invoke(app, [*args, "--force", "--baseline", "2"])
     assert bad.exit_code == 1 and "baseline" in bad.output
+
+
+def test_cli_synth_stereo_at_10_hz_says_so_in_the_folder(tmp_path: Path) -> None:
+    out = tmp_path / "seq"
+    args = ["synth", "stereo", "--out", str(out), "--frames", "3", "--size", "64x48"]
+    result = runner.invoke(app, [*args, "--fps", "10"])
+    assert result.exit_code == 0, result.output
+    assert "at 10 Hz" in result.output
+    assert read_sensor_yaml(out / "mav0" / "cam0" / "sensor.yaml").get("rate_hz") == 10
+    with open_source(out) as source:
+        assert isinstance(source, EurocSource)
+        stamps = [f.stamp_ns for f in source.frames(("stereo",)) if isinstance(f, StereoFrame)]
+    assert np.diff(stamps).tolist() == [100_000_000, 100_000_000]
+    bad = runner.invoke(app, [*args, "--force", "--fps", "30"])
+    assert bad.exit_code == 1 and "fps" in bad.output and "200 Hz" in bad.output

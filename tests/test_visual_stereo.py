@@ -159,11 +159,12 @@ def test_grouped_matching_is_brute_force_within_groups() -> None:
 @pytest.fixture(scope="session")
 def synthetic_loop(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, RunOutcome]:
     """18 s of the rendered stereo rig (one turn around the room, back to the start), with
-    noise, and its run."""
+    noise, at 10 Hz as KITTI's cameras (twice the steps of EuRoC's 20 Hz between pairs), and
+    its run."""
     from slamcli.synth.stereo import render_stereo_sequence
 
     root = tmp_path_factory.mktemp("synth_stereo")
-    render_stereo_sequence(root / "rig", frames=360, size=(320, 240), noise=True, seed=0)
+    render_stereo_sequence(root / "rig", frames=180, size=(320, 240), noise=True, seed=0, fps=10)
     return root / "rig", run_pipeline(root / "rig", "visual", root / "run")
 
 
@@ -175,7 +176,7 @@ def test_synthetic_loop_is_closed_at_metric_scale(
     folder, outcome = synthetic_loop
     result = outcome.result
     assert result.metrics["mode"] == "stereo"
-    assert len(result.trajectory) == 360
+    assert len(result.trajectory) == 180
     assert result.counts["loop_closures_accepted"] >= 1
     gt = open_source(folder).groundtruth()
     assert gt is not None

@@ -100,7 +100,13 @@ def stereo(
             "--out", "-o", help="Folder to write the EuRoC / ASL folder into.", show_default=False
         ),
     ],
-    frames: int = typer.Option(300, "--frames", "-n", min=2, help="Stereo pairs, at 20 Hz."),
+    frames: int = typer.Option(300, "--frames", "-n", min=2, help="Stereo pairs, at --fps."),
+    fps: float = typer.Option(
+        20.0,
+        "--fps",
+        help="Stereo pairs per second: 20 as EuRoC's cameras, 10 as KITTI's; any rate that "
+        "divides the IMU's 200 Hz.",
+    ),
     size: str = typer.Option("640x480", "--size", help="Image size WIDTHxHEIGHT in pixels."),
     baseline: float = typer.Option(
         0.12, "--baseline", help="Distance between the cameras in metres, up to 0.5."
@@ -116,14 +122,18 @@ def stereo(
     """Render a textured room with a stereo rig and an IMU as a EuRoC / ASL folder.
 
     Two undistorted pinhole cameras (fx = fy = 0.8 x width), --baseline apart along the left
-    camera's x axis, fly synth rgbd's closed loop at 20 Hz; the images are rectified as
-    rendered. The body is the IMU, with the left camera mounted on it as on EuRoC's rig.
+    camera's x axis, fly synth rgbd's closed loop at 20 Hz (or --fps); the images are rectified
+    as rendered. A slower rate takes the same loop in the same time, with larger steps between
+    pairs. The body is the IMU, with the left camera mounted on it as on EuRoC's rig.
     Writes mav0/cam0 and mav0/cam1 (data.csv, data/<ns>.png in 8-bit grey, sensor.yaml),
     mav0/imu0 (200 Hz gyroscope and accelerometer in the body frame, sensor.yaml) and
     mav0/state_groundtruth_estimate0/data.csv (world_from_body at every IMU sample).
 
     Example: [bold]slamcli synth stereo --out runs/synth_stereo --frames 8 --size 320x240
     --noise[/]
+
+    Example: [bold]slamcli synth stereo --out runs/synth_stereo_10hz --frames 6 --fps 10 --size
+    160x120[/]
     """
     from slamcli.synth.stereo import render_stereo_sequence
 
@@ -138,12 +148,13 @@ def stereo(
             noise=noise,
             force=force,
             progress=progress,
+            fps=fps,
         )
     cam = summary["camera"]
     render.key_values(
         "Stereo sequence",
         {
-            "pairs": f"{summary['frames']} ({summary['duration_s']:.2f} s at 20 Hz)",
+            "pairs": f"{summary['frames']} ({summary['duration_s']:.2f} s at {fps:g} Hz)",
             "cameras": f"{cam['width']}x{cam['height']}, fx=fy={cam['fx']:g}, "
             f"baseline {summary['baseline_m']:g} m",
             "imu": f"{summary['imu_samples']} samples at 200 Hz",

@@ -8,11 +8,13 @@ is rectified as rendered: a point at depth ``z`` shows on the same row in both i
 ``fx * baseline / z`` pixels further left in the right one.
 
 The left camera follows the closed loop of synth rgbd (:func:`slamcli.synth.rgbd.camera_path`)
-at 20 Hz: the loop's phase runs once over the sequence, so the last pair sits one step before
-the first and loop closure has a place to find; sequences of 18 s (360 pairs) or more turn once
-around the room. The body is the IMU's frame, as in EuRoC: the left camera sits on it at
-:data:`BODY_FROM_LEFT`, a few centimetres off with EuRoC's 90-degree turn about the optical axis
-and a slight tilt, so body-frame evaluation is exercised; the IMU's ``T_BS`` is the identity.
+at 20 Hz (EuRoC's rate), or at another rate ``fps`` that divides the IMU's 200 Hz (10 Hz as
+KITTI's cameras): the loop's phase runs once over the sequence, so the last pair sits one step
+before the first and loop closure has a place to find; sequences of 18 s (360 pairs at 20 Hz)
+or more turn once around the room, whatever the rate. The body is the IMU's frame, as in EuRoC:
+the left camera sits on it at :data:`BODY_FROM_LEFT`, a few centimetres off with EuRoC's
+90-degree turn about the optical axis and a slight tilt, so body-frame evaluation is exercised;
+the IMU's ``T_BS`` is the identity.
 
 The IMU reads the exact motion of the body at 200 Hz, from the first pair's stamp to the last
 one's (a sample at every pair's stamp): the gyroscope the body's angular velocity in rad/s, the
@@ -78,9 +80,10 @@ F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
 
 FPS = 20.0
-"""Stereo pair rate in Hz (EuRoC's)."""
+"""Default stereo pair rate in Hz (EuRoC's)."""
 IMU_RATE_HZ = 200.0
-"""IMU sample rate in Hz (EuRoC's); an integer multiple of :data:`FPS`."""
+"""IMU sample rate in Hz (EuRoC's); a whole multiple of every pair rate, so that a sample falls
+on every pair's stamp."""
 DEFAULT_BASELINE_M = 0.12
 MAX_BASELINE_M = 0.5
 
@@ -142,11 +145,13 @@ class StereoWorld:
             (``room.trajectory``: world_from_left at the pair stamps).
         baseline_m: distance between the two optical centres along the left camera's x axis.
         body_from_left: (4, 4) pose of the left camera on the body.
+        fps: stereo pairs per second.
     """
 
     room: RgbdWorld
     baseline_m: float
     body_from_left: F64
+    fps: float = FPS
 
     @property
     def camera(self) -> PinholeCamera:
@@ -208,7 +213,7 @@ class StereoWorld:
 
     def imu_stamps_ns(self) -> NDArray[np.int64]:
         """(M,) int64 IMU stamps from the first pair to the last, every 5 ms."""
-        per_frame = round(IMU_RATE_HZ / FPS)
+        per_frame = round(IMU_RATE_HZ / self.fps)
         step_ns = round(1e9 / IMU_RATE_HZ)
         count = (self.frames - 1) * per_frame + 1
         return self.stamps_ns[0] + step_ns * np.arange(count, dtype=np.int64)
@@ -224,9 +229,9 @@ class StereoWorld:
         cam_from_body = inverse(self.body_from_left)
         lever = cam_from_body[:3, 3]
         h = _STEP_S
-        world_from_cam, acc_cam = path_motion(self.frames, t_s, FPS)
-        cam_before = path_motion(self.frames, t_s - h, FPS)[0]
-        cam_after = path_motion(self.frames, t_s + h, FPS)[0]
+        world_from_cam, acc_cam = path_motion(self.frames, t_s, self.fps)
+        cam_before = path_motion(self.frames, t_s - h, self.fps)[0]
+        cam_after = path_motion(self.frames, t_s + h, self.fps)[0]
         before, after = cam_before @ cam_from_body, cam_after @ cam_from_body
         world_from_body = world_from_cam @ cam_from_body
         velocity = (after[:, :3, 3] - before[:, :3, 3]) / (2 * h)
@@ -279,30 +284,32 @@ def build_stereo_world(
     size: tuple[int, int] = (640, 480),
     baseline_m: float = DEFAULT_BASELINE_M,
     seed: int = 0,
+    fps: float = FPS,
 ) -> StereoWorld:
     """The room, rig and ground-truth poses of a sequence, without writing anything.
 
     Args:
-        frames: number of stereo pairs (>= 2), at 20 Hz.
+        frames: number of stereo pairs (>= 2).
         size: (width, height) in pixels.
         baseline_m: distance between the cameras in metres, in (0, 0.5].
-        seed: texture seed (the camera path depends only on ``frames``).
+        seed: texture seed (the camera path depends only on ``frames / fps``).
+        fps: stereo pairs per second; :data:`IMU_RATE_HZ` must be a whole multiple of it.
 
     Raises:
         ConfigError: a value out of range.
     """
-    _check_options(frames, size, baseline_m)
-    trajectory = camera_path(frames, FPS)
+    _check_options(frames, size, baseline_m, fps)
+    trajectory = camera_path(frames, fps)
     room = RgbdWorld(
         scene=room_scene(seed),
         camera=camera_for_size(*size),
         trajectory=trajectory,
         depth_stamps_ns=trajectory.stamps_ns,
     )
-    return StereoWorld(room, float(baseline_m), BODY_FROM_LEFT.copy())
+    return StereoWorld(room, float(baseline_m), BODY_FROM_LEFT.copy(), float(fps))
 
 
-def _check_options(frames: int, size: tuple[int, int], baseline_m: float) -> None:
+def _check_options(frames: int, size: tuple[int, int], baseline_m: float, fps: float) -> None:
     if frames < 2:
         raise ConfigError(f"frames: expected at least 2 stereo pairs, got {frames}")
     width, height = size
@@ -316,6 +323,13 @@ def _check_options(frames: int, size: tuple[int, int], baseline_m: float) -> Non
             hint="EuRoC's rig has 0.11 m; up to 0.5 m keeps both cameras clear of the room's "
             "boxes and walls",
         )
+    per_frame = IMU_RATE_HZ / fps if math.isfinite(fps) and fps > 0.0 else math.nan
+    if not (per_frame >= 1.0 and abs(per_frame - round(per_frame)) < 1e-9):
+        raise ConfigError(
+            f"fps: expected a rate that divides the IMU's {IMU_RATE_HZ:g} Hz, got {fps}",
+            hint="10 (as KITTI's cameras), 20 (as EuRoC's), 25, 40 or 50, for example: an IMU "
+            "sample then falls on every pair's stamp",
+        )
 
 
 def render_stereo_sequence(
@@ -327,13 +341,14 @@ def render_stereo_sequence(
     noise: bool = False,
     force: bool = False,
     progress: ProgressFn | None = None,
+    fps: float = FPS,
 ) -> dict[str, Any]:
     """Render a stereo sequence into ``out`` as a EuRoC / ASL folder (layout in the module
     docstring).
 
     Args:
         out: output folder; must be empty or absent unless ``force``.
-        frames: number of stereo pairs (>= 2), at 20 Hz.
+        frames: number of stereo pairs (>= 2), at ``fps``.
         size: (width, height) in pixels.
         baseline_m: distance between the cameras in metres, in (0, 0.5].
         seed: seeds the textures and all noise; same arguments -> bit-identical files.
@@ -341,9 +356,10 @@ def render_stereo_sequence(
             biases.
         force: replace a non-empty folder (once the new sequence is complete).
         progress: called as ``progress(done, frames)`` after each pair.
+        fps: stereo pairs per second; 200 (the IMU's rate) must be a whole multiple of it.
 
     Returns:
-        Summary: ``frames``, ``size``, ``camera`` (dict), ``baseline_m``, ``imu_samples``,
+        Summary: ``frames``, ``fps``, ``size``, ``camera`` (dict), ``baseline_m``, ``imu_samples``,
         ``duration_s``, ``path_length_m``, ``max_speed_mps``, ``max_rotation_dps`` (of the
         left camera), ``closure_m``, ``closure_deg``, ``seed``, ``noise``, ``out`` and
         ``files`` (paths of the text files, then the two image folders).
@@ -353,7 +369,7 @@ def render_stereo_sequence(
         ExportError: the folder cannot be written.
     """
     with RunDir(out, force=force) as run:
-        world = build_stereo_world(frames, size, baseline_m, seed)
+        world = build_stereo_world(frames, size, baseline_m, seed, fps)
         names = [f"{s}.png" for s in world.stamps_ns.tolist()]
         for folder in ("cam0/data", "cam1/data", "imu0", "state_groundtruth_estimate0"):
             run.staged(f"mav0/{folder}").mkdir(parents=True)
@@ -375,7 +391,8 @@ def render_stereo_sequence(
             files.append(run.write_text(f"mav0/{cam}/data.csv", _image_csv(world.stamps_ns)))
             files.append(
                 run.write_text(
-                    f"mav0/{cam}/sensor.yaml", _camera_yaml(cam, world.camera, body_from_cam)
+                    f"mav0/{cam}/sensor.yaml",
+                    _camera_yaml(cam, world.camera, body_from_cam, world.fps),
                 )
             )
         files.append(run.write_text("mav0/imu0/data.csv", _imu_csv(imu)))
@@ -410,7 +427,7 @@ def _matrix_yaml(m: F64) -> str:
     return "T_BS:\n  cols: 4\n  rows: 4\n  data: [" + ",\n         ".join(rows) + "]\n"
 
 
-def _camera_yaml(name: str, cam: PinholeCamera, body_from_cam: F64) -> str:
+def _camera_yaml(name: str, cam: PinholeCamera, body_from_cam: F64, fps: float) -> str:
     return (
         "%YAML:1.0\n"
         "# General sensor definitions.\n"
@@ -419,7 +436,7 @@ def _camera_yaml(name: str, cam: PinholeCamera, body_from_cam: F64) -> str:
         "# Sensor extrinsics wrt. the body-frame.\n"
         f"{_matrix_yaml(body_from_cam)}\n"
         "# Camera specific definitions.\n"
-        f"rate_hz: {FPS:g}\n"
+        f"rate_hz: {fps:g}\n"
         f"resolution: [{cam.width}, {cam.height}]\n"
         "camera_model: pinhole\n"
         f"intrinsics: [{cam.fx!r}, {cam.fy!r}, {cam.cx!r}, {cam.cy!r}] #fu, fv, cu, cv\n"
@@ -491,6 +508,7 @@ def _summary(world: StereoWorld, seed: int, noise: bool) -> dict[str, Any]:
     cam = world.camera
     return {
         "frames": world.frames,
+        "fps": world.fps,
         "size": [cam.width, cam.height],
         "camera": cam.to_dict(),
         "baseline_m": world.baseline_m,
