@@ -55,6 +55,7 @@ from slamcli.formats.trajectory import tum_lines
 from slamcli.geometry import make_pose
 from slamcli.geometry.camera import unproject
 from slamcli.rundir import RunDir
+from slamcli.synth.textures import TEXEL_M, paint_texture
 from slamcli.types import PinholeCamera, ProgressFn, Trajectory
 
 log = logging.getLogger(__name__)
@@ -78,8 +79,6 @@ ROOM_MIN = np.array([-3.0, -2.5, 0.0])
 ROOM_MAX = np.array([3.0, 2.5, 2.6])
 LIGHT_POSITION = np.array([0.0, 0.0, 2.45])
 
-TEXEL_M = 0.005
-"""Edge of a texel at the finest mip level."""
 _MIP_LEVELS = 5
 _SUPERSAMPLE_OFFSETS = ((-0.25, -0.25), (0.25, -0.25), (-0.25, 0.25), (0.25, 0.25))
 
@@ -179,7 +178,7 @@ def room_scene(seed: int = 0) -> RoomScene:
     for s in surfaces:
         cols = max(8, round(s.size_u / TEXEL_M))
         rows = max(8, round(s.size_v / TEXEL_M))
-        level0 = _texture(rng, rows, cols, s.kind)
+        level0 = paint_texture(rng, rows, cols, s.kind)
         levels: list[NDArray[np.uint8]] = [level0]
         for _ in range(1, _MIP_LEVELS):
             prev = levels[-1]
@@ -215,159 +214,6 @@ def _room_surfaces() -> list[Surface]:
         top = base + np.array([0.0, 0.0, bh])
         surfaces.append(Surface(f"box{i}.top", "box", top, ax, ay, bx, by))
     return surfaces
-
-
-_PALETTES: dict[str, tuple[tuple[int, int, int], ...]] = {
-    "floor": ((150, 110, 75), (120, 95, 70), (165, 140, 110), (95, 85, 80)),
-    "wall": ((215, 210, 195), (190, 205, 215), (220, 200, 180), (200, 215, 195)),
-    "ceiling": ((225, 225, 220), (210, 212, 215)),
-    "box": ((185, 150, 105), (160, 125, 85), (120, 140, 160), (175, 60, 50)),
-}
-# Decorations per square metre: (posters/rugs, medium shapes, small shapes, text lines).
-_DENSITY: dict[str, tuple[float, float, float, float]] = {
-    "floor": (0.5, 10.0, 45.0, 1.0),
-    "wall": (1.4, 12.0, 55.0, 3.0),
-    "ceiling": (0.3, 5.0, 25.0, 0.5),
-    "box": (2.0, 14.0, 60.0, 6.0),
-}
-
-
-def _texture(rng: np.random.Generator, rows: int, cols: int, kind: str) -> NDArray[np.uint8]:
-    """One surface texture: (rows, cols, 3) uint8 RGB at ``TEXEL_M`` metres per texel."""
-    import cv2
-
-    palette = _PALETTES[kind]
-    base = np.array(palette[rng.integers(len(palette))], dtype=np.float32)
-    coarse = rng.normal(0.0, 14.0, (rows // 48 + 2, cols // 48 + 2, 3)).astype(np.float32)
-    img: F32 = base + cv2.resize(coarse, (cols, rows), interpolation=cv2.INTER_CUBIC)
-    if kind in ("floor", "ceiling"):
-        _tiles(rng, img, 0.6 if kind == "ceiling" else float(rng.uniform(0.3, 0.5)))
-    area = rows * cols * TEXEL_M**2
-    n_large, n_medium, n_small, n_text = (rng.poisson(d * area) for d in _DENSITY[kind])
-    for _ in range(n_large):
-        _poster(rng, img)
-    for _ in range(n_medium):
-        _shape(rng, img, rng.uniform(0.04, 0.15) / TEXEL_M)
-    for _ in range(n_small):
-        _shape(rng, img, rng.uniform(0.012, 0.04) / TEXEL_M)
-    for _ in range(n_text):
-        _text(rng, img)
-    blurred = cv2.GaussianBlur(img, (0, 0), 0.6)
-    return np.clip(np.rint(blurred), 0, 255).astype(np.uint8)
-
-
-def _colour(rng: np.random.Generator) -> tuple[float, float, float]:
-    c = rng.integers(0, 256, 3)
-    return float(c[0]), float(c[1]), float(c[2])
-
-
-def _tiles(rng: np.random.Generator, img: F32, tile_m: float) -> None:
-    rows, cols = img.shape[:2]
-    step = max(4, round(tile_m / TEXEL_M))
-    ny, nx = rows // step + 1, cols // step + 1
-    shade = rng.normal(0.0, 12.0, (ny, nx, 1)).astype(np.float32)
-    img += np.repeat(np.repeat(shade, step, 0), step, 1)[:rows, :cols]
-    grout = np.float32(0.55)
-    img[::step] *= grout
-    img[1::step] *= grout
-    img[:, ::step] *= grout
-    img[:, 1::step] *= grout
-
-
-def _poster(rng: np.random.Generator, img: F32) -> None:
-    rows, cols = img.shape[:2]
-    h = min(rows - 2, round(rng.uniform(0.15, 0.7) / TEXEL_M))
-    w = min(cols - 2, round(rng.uniform(0.15, 0.8) / TEXEL_M))
-    if h < 4 or w < 4:
-        return
-    r0, c0 = int(rng.integers(0, rows - h)), int(rng.integers(0, cols - w))
-    patch = img[r0 : r0 + h, c0 : c0 + w]
-    style = rng.integers(3)
-    if style == 0:
-        cell = max(2, round(rng.uniform(0.015, 0.08) / TEXEL_M))
-        ii, jj = np.indices((h, w))
-        parity = ((ii // cell + jj // cell) % 2).astype(bool)
-        patch[...] = _colour(rng)
-        patch[parity] = _colour(rng)
-    elif style == 1:
-        width = max(2, round(rng.uniform(0.01, 0.05) / TEXEL_M))
-        ii, jj = np.indices((h, w))
-        diagonal = rng.integers(2) == 1
-        band = ((ii + jj) if diagonal else jj) // width % 2 == 1
-        patch[...] = _colour(rng)
-        patch[band] = _colour(rng)
-    else:
-        patch[...] = _colour(rng)
-        for _ in range(int(rng.integers(4, 12))):
-            _shape(rng, patch, rng.uniform(0.2, 0.5) * min(h, w))
-    frame = max(1, round(0.01 / TEXEL_M))
-    dark = np.float32(0.3)
-    img[r0 : r0 + frame, c0 : c0 + w] *= dark
-    img[r0 + h - frame : r0 + h, c0 : c0 + w] *= dark
-    img[r0 : r0 + h, c0 : c0 + frame] *= dark
-    img[r0 : r0 + h, c0 + w - frame : c0 + w] *= dark
-
-
-def _shape(rng: np.random.Generator, img: F32, size_px: float) -> None:
-    import cv2
-
-    rows, cols = img.shape[:2]
-    size = max(2.0, float(size_px))
-    cx, cy = rng.uniform(0, cols), rng.uniform(0, rows)
-    colour = _colour(rng)
-    kind = rng.integers(4)
-    if kind == 0:
-        angle = rng.uniform(0, np.pi)
-        half = np.array([size, size * rng.uniform(0.3, 1.0)]) / 2
-        c, s = math.cos(angle), math.sin(angle)
-        local = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * half
-        pts = local @ np.array([[c, s], [-s, c]]) + [cx, cy]
-        cv2.fillPoly(img, [np.rint(pts).astype(np.int32)], colour, cv2.LINE_AA)
-    elif kind == 1:
-        n = int(rng.integers(3, 7))
-        angles = np.sort(rng.uniform(0, 2 * np.pi, n))
-        radii = size / 2 * rng.uniform(0.5, 1.0, n)
-        pts = np.stack([cx + radii * np.cos(angles), cy + radii * np.sin(angles)], axis=1)
-        cv2.fillPoly(img, [np.rint(pts).astype(np.int32)], colour, cv2.LINE_AA)
-    elif kind == 2:
-        radius = max(1, round(size / 2))
-        cv2.circle(img, (round(cx), round(cy)), radius, colour, -1, cv2.LINE_AA)
-    else:
-        thick = max(1, round(size * rng.uniform(0.08, 0.2)))
-        angle = rng.uniform(0, np.pi)
-        dx, dy = size / 2 * math.cos(angle), size / 2 * math.sin(angle)
-        p0, p1 = (round(cx - dx), round(cy - dy)), (round(cx + dx), round(cy + dy))
-        cv2.line(img, p0, p1, colour, thick, cv2.LINE_AA)
-        if rng.integers(2):
-            p2, p3 = (round(cx + dy), round(cy - dx)), (round(cx - dy), round(cy + dx))
-            cv2.line(img, p2, p3, colour, thick, cv2.LINE_AA)
-
-
-_LETTERS = np.array(list("ABCDEFGHJKLMNPQRSTUVWXYZ0123456789#+="))
-
-
-def _text(rng: np.random.Generator, img: F32) -> None:
-    import cv2
-
-    rows, cols = img.shape[:2]
-    height_px = rng.uniform(0.025, 0.09) / TEXEL_M
-    scale = height_px / 22.0
-    text = "".join(rng.choice(_LETTERS, int(rng.integers(3, 9))))
-    thickness = max(1, round(scale * 2))
-    colour = np.array(_colour(rng), dtype=np.float32)
-    (w, h), baseline = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, thickness)
-    h += baseline + thickness
-    w += thickness
-    if w >= cols or h >= rows:
-        return
-    r0, c0 = int(rng.integers(0, rows - h)), int(rng.integers(0, cols - w))
-    # putText draws only on 8-bit images: render coverage, then blend the colour by it.
-    alpha = np.zeros((h, w), dtype=np.uint8)
-    org = (thickness // 2, h - baseline - thickness // 2)
-    cv2.putText(alpha, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, 255, thickness, cv2.LINE_AA)
-    a = (alpha.astype(np.float32) / 255.0)[..., None]
-    patch = img[r0 : r0 + h, c0 : c0 + w]
-    patch[...] = patch * (1.0 - a) + colour * a
 
 
 def camera_for_size(width: int, height: int) -> PinholeCamera:
@@ -509,9 +355,11 @@ class RgbdWorld:
     _raycaster: Any = field(default=None, repr=False)
     # Rays through the pixels in the camera frame, per set of sub-pixel offsets (the same for
     # every pose).
-    _camera_rays: dict[tuple[tuple[float, float], ...], list[F64]] = field(
+    _camera_rays: dict[tuple[tuple[float, float], ...], F64] = field(
         default_factory=dict, repr=False
     )
+    # Per-surface arrays of the scene for the shading kernels, built on first use.
+    _table: dict[str, NDArray[Any]] | None = field(default=None, repr=False)
 
     def cast(self, world_from_cam: F64) -> tuple[F32, NDArray[np.int32]]:
         """Ray cast through the pixel centres from a (4, 4) world_from_camera pose.
@@ -520,8 +368,8 @@ class RgbdWorld:
             depth (H, W) float32 z-depth in metres (inf where nothing is hit, no range limit),
             surface (H, W) int32 index into ``scene.surfaces`` (-1 where nothing is hit).
         """
-        t, sid = self._cast(world_from_cam, self._directions(world_from_cam, ((0.0, 0.0),)))
-        return t[0], sid[0]
+        t, prim = self._cast(self._rays(world_from_cam, ((0.0, 0.0),)))
+        return t[0], _surface_ids(t[0], prim[0])
 
     def render(
         self, world_from_cam: F64, rng: np.random.Generator | None = None
@@ -536,13 +384,14 @@ class RgbdWorld:
             rgb (H, W, 3) uint8 and depth (H, W) float32 metres, 0 = no reading.
         """
         offsets = ((0.0, 0.0), *_SUPERSAMPLE_OFFSETS)
-        rays = self._directions(world_from_cam, offsets)
-        t, sid = self._cast(world_from_cam, rays)
-        origin = world_from_cam[:3, 3].astype(np.float32)
-        colour = self._shade(origin, rays[1:], t[1:], sid[1:]).mean(axis=0)
+        rays = self._rays(world_from_cam, offsets)
+        t, prim = self._cast(rays)
+        colour = self._shade(rays[1:], t[1:], prim[1:])
         depth = t[0].copy()
         if rng is not None:
-            depth = _kinect_depth(depth, sid[0], rays[0], self.scene.normals, rng)
+            sid = _surface_ids(t[0], prim[0])
+            dirs = np.ascontiguousarray(rays[0, ..., 3:])
+            depth = _kinect_depth(depth, sid, dirs, self.scene.normals, rng)
             colour += rng.normal(0.0, _COLOUR_SIGMA, colour.shape).astype(np.float32)
         depth[~((depth >= MIN_RANGE_M) & (depth <= MAX_RANGE_M))] = 0.0
         rgb = np.clip(np.rint(colour), 0, 255).astype(np.uint8)
@@ -552,30 +401,35 @@ class RgbdWorld:
         """Noise-free colour (H, W, 3) float32 RGB of one view, not yet rounded or clipped to
         [0, 255]: the mean of the 2x2 sub-pixel rays :meth:`render` shades, without its depth
         ray."""
-        rays = self._directions(world_from_cam, _SUPERSAMPLE_OFFSETS)
-        t, sid = self._cast(world_from_cam, rays)
-        origin = world_from_cam[:3, 3].astype(np.float32)
-        return self._shade(origin, rays, t, sid).mean(axis=0)
+        rays = self._rays(world_from_cam, _SUPERSAMPLE_OFFSETS)
+        t, prim = self._cast(rays)
+        return self._shade(rays, t, prim)
 
-    def _directions(self, world_from_cam: F64, offsets: tuple[tuple[float, float], ...]) -> F32:
-        """World ray directions (K, H, W, 3) with unit z in the camera frame, per pixel offset."""
+    def _rays(self, world_from_cam: F64, offsets: tuple[tuple[float, float], ...]) -> F32:
+        """Rays (K, H, W, 6) float32 from a (4, 4) world_from_camera pose, one image per pixel
+        offset: the camera centre (world frame, metres), then the world direction through the
+        offset pixel position, scaled to unit z in the camera frame."""
         cam = self.camera
-        rays = self._camera_rays.get(offsets)
-        if rays is None:
+        camera_rays = self._camera_rays.get(offsets)
+        if camera_rays is None:
             uv = np.stack(
                 np.meshgrid(np.arange(cam.width, dtype=np.float64), np.arange(cam.height)),
                 axis=-1,
             )
-            rays = [unproject(cam, uv + offset, 1.0) for offset in offsets]
-            self._camera_rays[offsets] = rays
-        out = np.empty((len(offsets), cam.height, cam.width, 3), dtype=np.float32)
-        rot = world_from_cam[:3, :3]
-        for k, camera_rays in enumerate(rays):
-            out[k] = camera_rays @ rot.T
+            camera_rays = np.stack([unproject(cam, uv + offset, 1.0) for offset in offsets])
+            self._camera_rays[offsets] = camera_rays
+        from slamcli.synth._render_kernels import pack_rays
+
+        out = np.empty((len(offsets), cam.height, cam.width, 6), dtype=np.float32)
+        centre, rot = world_from_cam[:3, 3].copy(), world_from_cam[:3, :3]
+        for k, rays in enumerate(camera_rays):
+            pack_rays(centre, rays @ rot.T, out[k])
         return out
 
-    def _cast(self, world_from_cam: F64, dirs: F32) -> tuple[F32, NDArray[np.int32]]:
-        """Hit z-depth (K, H, W) and surface index (K, H, W) of rays from the camera centre."""
+    def _cast(self, rays: F32) -> tuple[F32, NDArray[np.uint32]]:
+        """First hits of rays (K, H, W, 6) from :meth:`_rays`: the ray parameter (K, H, W)
+        float32 in units of the direction's length, so the z-depth in metres (inf for a miss),
+        and the index (K, H, W) uint32 of the hit mesh triangle."""
         from slamcli.backends import import_open3d
 
         o3d = import_open3d()
@@ -588,93 +442,113 @@ class RgbdWorld:
                 o3d.core.Tensor.from_numpy(np.ascontiguousarray(faces, dtype=np.uint32)),
             )
             self._raycaster = caster
-        origin = np.broadcast_to(world_from_cam[:3, 3].astype(np.float32), dirs.shape)
-        rays = np.ascontiguousarray(np.concatenate([origin, dirs], axis=-1))
         hits = self._raycaster.cast_rays(o3d.core.Tensor.from_numpy(rays))
-        t = hits["t_hit"].numpy().astype(np.float32)
-        prim = hits["primitive_ids"].numpy().astype(np.int64)
-        missed = ~np.isfinite(t)
-        sid = np.where(missed, -1, prim // 2).astype(np.int32)
-        return t, sid
+        return hits["t_hit"].numpy(), hits["primitive_ids"].numpy()
 
-    def _shade(self, origin: NDArray[np.float32], dirs: F32, t: F32, sid: NDArray[np.int32]) -> F32:
-        """Shaded texture colour (K, H, W, 3) float32 of each ray's hit (black for misses)."""
-        shape = t.shape
-        sid = sid.reshape(-1)
-        hit = sid >= 0
-        s = np.maximum(sid, 0)
-        d = dirs.reshape(-1, 3)
-        points = origin + np.where(hit, t.reshape(-1), 0.0)[:, None] * d
+    def _shade(self, rays: F32, t: F32, prim: NDArray[np.uint32]) -> F32:
+        """Mean shaded texture colour (H, W, 3) float32 over the K images of rays (K, H, W, 6)
+        from :meth:`_rays`, with their hits ``t`` and ``prim`` (K, H, W) from :meth:`_cast`;
+        a ray that hits nothing counts as black.
+
+        Each hit samples its surface's texture bilinearly at the mip level whose texels match
+        the ray's footprint, and is lit by the point light at ``LIGHT_POSITION``.
+        """
+        import cv2
+
+        from slamcli.synth import _render_kernels as kernels
+
+        views, height, width = t.shape
+        n = views * height * width
         table = self._surface_table()
-        rel = points - np.take(table["origin"], s, axis=0)
-        a = np.einsum("ij,ij->i", rel, np.take(table["u"], s, axis=0))
-        b = np.einsum("ij,ij->i", rel, np.take(table["v"], s, axis=0))
-        normal = np.take(table["normal"], s, axis=0)
-        d_norm = np.linalg.norm(d, axis=1)
-        cos_inc = np.abs(np.einsum("ij,ij->i", d, normal)) / d_norm
-        # A sub-pixel ray covers half a pixel; its footprint on the surface grows with depth
-        # and with the slant of the surface, and picks the mip level with matching texels.
-        ray_length = np.where(hit, t.reshape(-1), 0.0) * d_norm
-        footprint = ray_length / (2.0 * self.camera.fx * np.maximum(cos_inc, 0.2))
-        level = np.floor(np.log2(np.maximum(footprint / TEXEL_M, 1e-6)) + 0.5)
-        level = np.clip(level, 0, np.take(table["levels"], s) - 1).astype(np.int64)
-        key = np.where(hit, s * _MIP_LEVELS + level, -1)
-        # Keys are small (surface, mip level) numbers: a stable sort of 16-bit keys is a radix
-        # sort, and the sorted keys give each run's start without sorting again.
-        small = key.astype(np.int16) if len(self.scene.surfaces) * _MIP_LEVELS < 2**15 else key
-        order = np.argsort(small, kind="stable")
-        ordered = key[order]
-        starts = np.concatenate([[0], np.flatnonzero(ordered[1:] != ordered[:-1]) + 1])
-        keys = ordered[starts]
-        ends = np.append(starts[1:], key.size)
-        colours = np.zeros((key.size, 3), dtype=np.float32)
-        for k, start, end in zip(keys, starts, ends, strict=True):
-            if k < 0:
-                continue
-            surface, lv = divmod(int(k), _MIP_LEVELS)
-            idx = order[start:end]
-            texel = TEXEL_M * 2.0**lv
-            rows = (table["size_v"][surface] - b[idx]) / texel - 0.5
-            colours[idx] = _sample(self.scene.textures[surface][lv], a[idx] / texel - 0.5, rows)
-        to_light = LIGHT_POSITION.astype(np.float32) - points
-        dist2 = np.einsum("ij,ij->i", to_light, to_light)
-        lambert = np.abs(np.einsum("ij,ij->i", to_light, normal)) / np.sqrt(dist2)
-        shade = 0.45 + 0.75 * lambert / (1.0 + 0.12 * dist2)
-        return (colours * shade[:, None].astype(np.float32)).reshape(*shape, 3)
+        sid = np.empty(n, dtype=np.int32)
+        footprint, a, b, shade = (np.empty(n, dtype=np.float32) for _ in range(4))
+        kernels.hit_geometry(
+            rays.reshape(n, 6),
+            t.reshape(n),
+            prim.reshape(n),
+            table["origin"],
+            table["u"],
+            table["v"],
+            table["normal"],
+            LIGHT_POSITION.astype(np.float32),
+            np.float32(2.0 * self.camera.fx),
+            np.float32(TEXEL_M),
+            sid,
+            footprint,
+            a,
+            b,
+            shade,
+        )
+        # The mip level is the rounded log2 of the footprint in level-0 texels. Samples are
+        # grouped by (surface, level), each group in ray order and padded to whole map rows.
+        log2_footprint = np.log2(footprint)
+        counts = np.zeros(len(self.scene.surfaces) * _MIP_LEVELS, dtype=np.int64)
+        kernels.count_keys(sid, log2_footprint, table["levels"], _MIP_LEVELS, counts)
+        rows = -(-counts // _SAMPLE_ROW)
+        starts = (np.cumsum(rows) - rows) * _SAMPLE_ROW
+        total = int(rows.sum()) * _SAMPLE_ROW
+        map_x = np.zeros(total, dtype=np.float32)
+        map_y = np.zeros(total, dtype=np.float32)
+        sample = np.empty(n, dtype=np.int32)
+        kernels.place_samples(
+            sid,
+            log2_footprint,
+            a,
+            b,
+            table["size_v"],
+            table["levels"],
+            table["texels"],
+            starts,
+            map_x,
+            map_y,
+            sample,
+        )
+        samples = np.empty((total, 3), dtype=np.uint8)
+        for key in np.flatnonzero(counts):
+            surface, lv = divmod(int(key), _MIP_LEVELS)
+            block = slice(int(starts[key]), int(starts[key] + rows[key] * _SAMPLE_ROW))
+            shape = (int(rows[key]), _SAMPLE_ROW)
+            dst = samples[block].reshape(*shape, 3)
+            sampled = cv2.remap(
+                self.scene.textures[surface][lv],
+                map_x[block].reshape(shape),
+                map_y[block].reshape(shape),
+                dst=dst,
+                interpolation=cv2.INTER_LINEAR,
+                borderMode=cv2.BORDER_REFLECT_101,
+            )
+            if sampled is not dst:
+                dst[...] = sampled
+        colour = np.empty((height * width, 3), dtype=np.float32)
+        kernels.mean_colour(samples, sample, shade, views, colour)
+        return colour.reshape(height, width, 3)
 
     def _surface_table(self) -> dict[str, NDArray[Any]]:
-        """Per-surface arrays for vectorised lookups: origin, u, v, normal (S, 3) float32,
-        size_v (S,) float32 and the number of mip levels (S,) int64."""
-        surfaces = self.scene.surfaces
-        return {
-            "origin": np.stack([x.origin for x in surfaces]).astype(np.float32),
-            "u": np.stack([x.u_axis for x in surfaces]).astype(np.float32),
-            "v": np.stack([x.v_axis for x in surfaces]).astype(np.float32),
-            "normal": self.scene.normals.astype(np.float32),
-            "size_v": np.array([x.size_v for x in surfaces], dtype=np.float32),
-            "levels": np.array([len(t) for t in self.scene.textures], dtype=np.int64),
-        }
+        """Per-surface arrays for the shading kernels: origin, u, v, normal (S, 3) float32,
+        size_v (S,) float32 metres and the number of mip levels (S,) int64; and the texel edge
+        (L,) float32 metres of each mip level."""
+        if self._table is None:
+            surfaces = self.scene.surfaces
+            self._table = {
+                "origin": np.stack([x.origin for x in surfaces]).astype(np.float32),
+                "u": np.stack([x.u_axis for x in surfaces]).astype(np.float32),
+                "v": np.stack([x.v_axis for x in surfaces]).astype(np.float32),
+                "normal": self.scene.normals.astype(np.float32),
+                "size_v": np.array([x.size_v for x in surfaces], dtype=np.float32),
+                "levels": np.array([len(t) for t in self.scene.textures], dtype=np.int64),
+                "texels": np.array([TEXEL_M * 2.0**lv for lv in range(_MIP_LEVELS)], np.float32),
+            }
+        return self._table
 
 
-def _sample(texture: NDArray[np.uint8], cols: F32, rows: F32) -> F32:
-    """Bilinear texture lookup at (M,) fractional texel coordinates -> (M, 3) float32."""
-    import cv2
+_SAMPLE_ROW = 1024
+"""Texture samples per row of a ``cv2.remap`` map (which caps each side below 32767)."""
 
-    m = cols.size
-    width = 1024
-    height = -(-m // width)
-    map_x = np.zeros(height * width, dtype=np.float32)
-    map_y = np.zeros(height * width, dtype=np.float32)
-    map_x[:m], map_y[:m] = cols, rows
-    # cv2.remap caps each output side below 32767, so the samples are laid out in rows.
-    sampled = cv2.remap(
-        texture,
-        map_x.reshape(height, width),
-        map_y.reshape(height, width),
-        interpolation=cv2.INTER_LINEAR,
-        borderMode=cv2.BORDER_REFLECT_101,
-    )
-    return np.asarray(sampled.reshape(-1, 3)[:m], dtype=np.float32)
+
+def _surface_ids(t: F32, prim: NDArray[np.uint32]) -> NDArray[np.int32]:
+    """Surface index (int32, -1 for a miss) of hits ``t`` (ray parameters, inf for a miss) on
+    mesh triangles ``prim``, any matching shapes."""
+    return np.where(~np.isfinite(t), -1, prim.astype(np.int64) // 2).astype(np.int32)
 
 
 def _kinect_depth(
