@@ -86,6 +86,15 @@ def hit_geometry(
 
 
 @numba.njit(cache=True, nogil=True)
+def _mip_level(log2_footprint: np.float32, levels: int) -> int:
+    """The mip level of a footprint: its log2 in level-0 texels (float32) rounded, clipped to
+    the surface's ``levels`` levels."""
+    level = np.floor(log2_footprint + np.float32(0.5))
+    top = levels - 1
+    return 0 if level < 0 else (top if level > top else int(level))
+
+
+@numba.njit(cache=True, nogil=True)
 def count_keys(
     sid: NDArray[np.int32],
     log2_footprint: F32,
@@ -95,13 +104,10 @@ def count_keys(
 ) -> None:
     """Add to ``counts`` the hit rays per key ``surface * mips + level``, the level being
     the rounded log2 footprint clipped to the surface's mip levels."""
-    half = np.float32(0.5)
     for i in range(sid.shape[0]):
         s = sid[i]
         if s >= 0:
-            level = np.floor(log2_footprint[i] + half)
-            top = levels[s] - 1
-            counts[s * mips + (0 if level < 0 else (top if level > top else int(level)))] += 1
+            counts[s * mips + _mip_level(log2_footprint[i], levels[s])] += 1
 
 
 @numba.njit(cache=True, nogil=True)
@@ -130,9 +136,7 @@ def place_samples(
         if s < 0:
             sample[i] = -1
             continue
-        level = np.floor(log2_footprint[i] + half)
-        top = levels[s] - 1
-        lv = 0 if level < 0 else (top if level > top else int(level))
+        lv = _mip_level(log2_footprint[i], levels[s])
         k = s * mips + lv
         p = fill[k]
         fill[k] = p + 1
