@@ -16,8 +16,12 @@ import argparse
 import statistics
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from slamcli.synth.rgbd import RgbdWorld
 
 
 def _median_ms(work: Callable[[int], object], views: list[int]) -> float:
@@ -30,20 +34,20 @@ def _median_ms(work: Callable[[int], object], views: list[int]) -> float:
     return 1000.0 * statistics.median(times)
 
 
-def _bare_cast_ms(world: object, rays_per_pixel: int, views: list[int]) -> float:
+def _bare_cast_ms(world: RgbdWorld, rays_per_pixel: int, views: list[int]) -> float:
     """Open3D's cast_rays alone on one image's rays (origins and directions made beforehand)."""
     from slamcli.backends import import_open3d
 
     o3d = import_open3d()
-    vertices, faces = world.scene.mesh()  # type: ignore[attr-defined]
+    vertices, faces = world.scene.mesh()
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(
         o3d.core.Tensor.from_numpy(np.ascontiguousarray(vertices, dtype=np.float32)),
         o3d.core.Tensor.from_numpy(np.ascontiguousarray(faces, dtype=np.uint32)),
     )
-    cam = world.camera  # type: ignore[attr-defined]
-    poses = world.trajectory.world_from_body  # type: ignore[attr-defined]
-    rays: dict[int, object] = {}
+    cam = world.camera
+    poses = world.trajectory.world_from_body
+    rays: dict[int, Any] = {}
     for i in views:
         pose = poses[i]
         u, v = np.meshgrid(np.arange(cam.width), np.arange(cam.height))
