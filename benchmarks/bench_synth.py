@@ -72,9 +72,11 @@ def main() -> None:
         world = build_rgbd_world(540, size, seed=0)
         views = np.linspace(0, 539, args.repeat + 1).astype(int).tolist()
         rng = np.random.default_rng(0)
-        ours = _median_ms(
-            lambda i, w=world, g=rng: w.render(w.trajectory.world_from_body[i], g), views
-        )
+
+        def view(i: int, w: RgbdWorld = world, g: np.random.Generator = rng) -> object:
+            return w.render(w.trajectory.world_from_body[i], g)
+
+        ours = _median_ms(view, views)
         bare = _bare_cast_ms(world, 5, views)
         rows.append((f"synth rgbd {size[0]}x{size[1]}, noise", ours, bare))
     stereo = build_stereo_world(360, (320, 240), seed=0)
