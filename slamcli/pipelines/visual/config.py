@@ -60,6 +60,14 @@ class VisualConfig:
         gt=1.0,
         max=1000.0,
     )
+    stereo_min_near: int = setting(
+        100,
+        help="stereo: when fewer keypoints than this lie nearer than stereo_far_baselines, the "
+        "nearest far ones keep their depth too, up to this many (as ORB-SLAM's keyframes take "
+        "at least 100 points from stereo), so that a short-baseline rig in a large space still "
+        "starts and holds its scale; 0 never keeps a far point's depth",
+        min=0,
+    )
     keyframe_track_ratio: float = setting(
         0.75,
         help="a keyframe is made when a frame tracks fewer than this share of its reference "

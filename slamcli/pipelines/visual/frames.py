@@ -11,7 +11,8 @@ A keypoint with depth is weighed as a stereo observation: its right-image column
 ``u - fx * baseline / depth`` is a second residual (ORB-SLAM's RGB-D mode uses a virtual
 baseline; a stereo rig has a real one). Stereo keypoints further than ``stereo_far_baselines``
 baselines are far points: their depth is dropped, so they constrain rotation only until local
-mapping triangulates them from the motion between keyframes.
+mapping triangulates them from the motion between keyframes; when fewer than
+``stereo_min_near`` are near, the nearest far ones keep theirs (:func:`near_depths`).
 """
 
 from __future__ import annotations
@@ -33,6 +34,22 @@ F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
 
 AnyFrame = RgbdFrame | ImageFrame | StereoFrame
+
+
+def near_depths(depth_m: F64, far_m: float, min_near: int) -> F64:
+    """Stereo depths (N,) metres with far points' dropped (NaN): those beyond ``far_m``, or
+    without a match. When fewer than ``min_near`` depths are within ``far_m``, the nearest far
+    ones are kept as well, up to ``min_near`` in all (ties in depth to the lower index)."""
+    z = np.array(depth_m, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        far = ~(z <= far_m)
+    missing = min_near - (z.size - int(np.count_nonzero(far)))
+    if missing > 0:
+        candidates = np.flatnonzero(far & np.isfinite(z))
+        nearest = candidates[np.argsort(z[candidates], kind="stable")[:missing]]
+        far[nearest] = False
+    z[far] = np.nan
+    return z
 
 
 @dataclass(frozen=True)
@@ -287,9 +304,7 @@ class Rig:
                 hint="the visual pipeline needs one fixed stereo rig",
             )
         features = extracted.left
-        z = np.array(extracted.matches.depth_m, dtype=np.float64)
-        with np.errstate(invalid="ignore"):
-            z[~(z <= self.depth_max_m)] = np.nan
+        z = near_depths(extracted.matches.depth_m, self.depth_max_m, self.config.stereo_min_near)
         kp = features.keypoints.astype(np.float64)
         return Frame(
             index=index,

@@ -21,7 +21,7 @@ Per frame (:meth:`VisualSlam.process`), in the order of ORB-SLAM's threads of wo
 
 :meth:`VisualSlam.finish` runs a last global bundle adjustment and re-estimates every frame's
 pose against the final map (an offline tool can afford it), then returns the trajectory of
-every frame in the main map (the one of the first keyframe, with all maps merged into it;
+every frame in the main map (the one holding the most frames, with all maps merged into it;
 poses of the body the source's ground truth refers to, which for a stereo rig may differ from
 the left camera, as EuRoC's IMU body does), the keyframes, the coloured points, the pose
 graph, and counts of frames by tracking state, maps, merges and loop closures with their
