@@ -140,6 +140,22 @@ def test_pairs_of_different_sizes_are_refused() -> None:
     slam.close()
 
 
+def test_pairs_without_stereo_matches_make_no_map_and_say_why() -> None:
+    from slamcli.errors import PipelineError
+
+    source = open_source(shared_path(*KITTI))
+    frames = [f for _, f in zip(range(3), source.frames(kinds=("stereo",)), strict=False)]
+    slam = VisualSlam(VisualConfig(threads=1))
+    slam.frame_kinds(source.info())
+    # A right camera that sees nothing: no keypoint finds its match, so no depth at all.
+    for f in frames:
+        slam.process(type(f)(f.stamp_ns, f.left, np.zeros_like(f.right), f.rig, name=f.name))
+    with pytest.raises(PipelineError) as err:
+        slam.finish()
+    assert "no map could be made from 3 stereo pairs" in err.value.msg
+    assert "among the 100 nearest" in err.value.msg and "stereo_min_near" in err.value.hint
+
+
 def test_grouped_matching_is_brute_force_within_groups() -> None:
     rng = np.random.default_rng(3)
     a = rng.integers(0, 256, (400, 32), dtype=np.uint8)

@@ -276,9 +276,12 @@ class VisualSlam(PipelineBase):
         if self.rig.stereo:
             raise PipelineError(
                 f"no map could be made from {self._frames} stereo pairs: none had 100 keypoints "
-                f"matched in the right image nearer than {self.rig.depth_max_m:.1f} m",
+                f"matched in the right image with a depth kept (nearer than "
+                f"{self.rig.depth_max_m:.1f} m, or among the {self.config.stereo_min_near} "
+                "nearest)",
                 hint="check that the pairs are rectified and the baseline is right "
-                "('slamcli info'), or raise visual.stereo_far_baselines",
+                "('slamcli info'), or raise visual.stereo_far_baselines or "
+                "visual.stereo_min_near",
             )
         raise PipelineError(
             f"no map could be made from {self._frames} frames: none had 100 keypoints with depth "
