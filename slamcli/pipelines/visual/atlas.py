@@ -388,9 +388,10 @@ class Atlas:
         self.current += 1
 
     def main_map(self) -> int | None:
-        """The map that holds the most tracked frames (every map merged into it counted in),
-        the earliest map on a tie; None without a live keyframe. A map that was lost a few
-        frames after it started does not stand for a run that a later map tracked to the end."""
+        """The map that holds the most tracked frames (every map merged into it counted in);
+        on a tie the map of the first live keyframe, then the lowest id; None without a live
+        keyframe. A map that was lost a few frames after it started does not stand for a run
+        that a later map tracked to the end."""
         kfs = self.map.live()
         if not kfs:
             return None
@@ -400,7 +401,7 @@ class Atlas:
             if map_id in frames:
                 frames[map_id] += 1
         first = kfs[0].map_id
-        return max(frames, key=lambda m: (frames[m], m == first, -m), default=first)
+        return max(frames, key=lambda m: (frames[m], m == first, -m))
 
     def merge(self, keep: int, gone: int, keep_from_gone: F64, keyframes: tuple[int, int]) -> None:
         """Bring map ``gone`` into map ``keep``'s frame by the similarity ``keep_from_gone``
