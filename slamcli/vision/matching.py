@@ -218,7 +218,7 @@ def match_by_projection(
     return pairs
 
 
-def _words(desc: U8, name: str) -> NDArray[np.uint64]:
+def descriptor_words(desc: U8, name: str) -> NDArray[np.uint64]:
     """(N, B) uint8 descriptors as (N, ceil(B / 8)) uint64 words, zero-padded (the padding
     adds nothing to any Hamming distance)."""
     d = np.asarray(desc)
@@ -236,8 +236,8 @@ def _words(desc: U8, name: str) -> NDArray[np.uint64]:
 def _words_pair(
     a: U8, name_a: str, b: U8, name_b: str
 ) -> tuple[NDArray[np.uint64], NDArray[np.uint64]]:
-    """Two descriptor arrays of one width as uint64 words (:func:`_words`)."""
-    wa, wb = _words(a, name_a), _words(b, name_b)
+    """Two descriptor arrays of one width as uint64 words (:func:`descriptor_words`)."""
+    wa, wb = descriptor_words(a, name_a), descriptor_words(b, name_b)
     if np.shape(a)[1] != np.shape(b)[1]:
         raise InputError(
             f"{name_a} and {name_b}: descriptors of {np.shape(a)[1]} and {np.shape(b)[1]} bytes",

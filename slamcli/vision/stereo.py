@@ -32,7 +32,7 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError, InputError
 from slamcli.types import StereoRig
 from slamcli.vision.features import Features
-from slamcli.vision.matching import TH_HIGH, TH_LOW
+from slamcli.vision.matching import TH_HIGH, TH_LOW, descriptor_words
 
 F64 = NDArray[np.float64]
 F32 = NDArray[np.float32]
@@ -235,26 +235,16 @@ def _descriptor_pairs(
         left.keypoints[:, 0].astype(np.float64),
         left.keypoints[:, 1].astype(np.float64),
         left.octaves.astype(np.int64),
-        _words(left.descriptors),
+        descriptor_words(left.descriptors, "left stereo descriptors"),
         right.keypoints[:, 0].astype(np.float64),
         right.keypoints[:, 1].astype(np.float64),
         oct_r,
-        _words(right.descriptors),
+        descriptor_words(right.descriptors, "right stereo descriptors"),
         lowest,
         bands,
         max_disp,
         float(s.max_hamming),
     )
-
-
-def _words(descriptors: NDArray[np.uint8]) -> NDArray[np.uint64]:
-    """(N, B) uint8 descriptors as (N, ceil(B / 8)) uint64 words, zero-padded (which adds no
-    bits to a Hamming distance)."""
-    d = np.ascontiguousarray(descriptors, dtype=np.uint8)
-    pad = -d.shape[1] % 8
-    if pad:
-        d = np.pad(d, ((0, 0), (0, pad)))
-    return d.view(np.uint64)
 
 
 def _pyramid(image: NDArray[np.uint8], levels: int, scale: float) -> list[NDArray[np.uint8]]:

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.vision.matching import descriptor_words
 from slamcli.vision.matching import hamming as _hamming
 
 U8 = NDArray[np.uint8]
@@ -157,9 +158,10 @@ class Vocabulary:
         from slamcli.vision import _matching_kernels as kernels
 
         if self._centroid_words is None:
-            self._centroid_words = np.ascontiguousarray(self.centroids).view(np.uint64)
+            self._centroid_words = descriptor_words(self.centroids, "vocabulary centroids")
+        words = descriptor_words(desc, "descriptors")
         nodes: I32 = kernels.descend(
-            desc.view(np.uint64), self._centroid_words, self.children, self.node_word, stop_level
+            words, self._centroid_words, self.children, self.node_word, stop_level
         )
         return nodes
 
