@@ -22,6 +22,11 @@ runner = CliRunner()
 
 SAMPLE = Path(__file__).resolve().parents[1] / "sample_data" / "landmarks"
 
+# Accuracy thresholds on MRCLAM robots 1-5, shared with the perturbed runs of tests/robust.
+MRCLAM_MAX_ATE_M = 0.35
+MRCLAM_MEAN_ATE_M = 0.25
+MRCLAM_MEAN_LANDMARK_M = 0.30
+
 
 def _record(out: Path) -> dict:
     return json.loads((out / "run.json").read_text())
@@ -54,9 +59,9 @@ def test_mrclam_all_robots_meet_the_accuracy_goals(shared_run: Any) -> None:
         assert counts["rejected_by_gate"] < 0.02 * counts["observations"]
     print(f"ATE per robot {np.round(ate, 3)}, dead reckoning {np.round(dr, 3)}")
     print(f"landmark RMSE per robot {np.round(lm, 3)}")
-    assert max(ate) <= 0.35
-    assert np.mean(ate) <= 0.25
-    assert np.mean(lm) <= 0.30
+    assert max(ate) <= MRCLAM_MAX_ATE_M
+    assert np.mean(ate) <= MRCLAM_MEAN_ATE_M
+    assert np.mean(lm) <= MRCLAM_MEAN_LANDMARK_M
     # Dead reckoning alone is an order of magnitude worse.
     assert min(dr) > 1.0
 
