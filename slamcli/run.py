@@ -128,6 +128,7 @@ def run_pipeline(
             "frames_skipped": tracked.stats.skipped,
             "frames_processed": tracked.frames,
             **result.counts,
+            "doubts": len(result.metrics.get("doubts", ())),
         }
         record = _record(
             run,

@@ -82,3 +82,43 @@ def shared_artefact(shared_root: Path) -> Any:
         return make_once(key, shared_root, make)
 
     return get
+
+
+def _implausible_loops(root: Path) -> list[str]:
+    """Loops accepted in any run.json under ``root`` whose scale is outside [0.5, 2]. A merge
+    is not counted: it joins a map started after tracking was lost, whose scale is its own."""
+    import json
+
+    found = []
+    for path in sorted(root.rglob("run.json")):
+        try:
+            info = json.loads(path.read_text())
+        except (OSError, ValueError):
+            continue
+        metrics = info.get("metrics") if isinstance(info, dict) else None
+        records = metrics.get("loop_closures") if isinstance(metrics, dict) else None
+        for r in records if isinstance(records, list) else []:
+            scale = r.get("scale") if isinstance(r, dict) else None
+            accepted = r.get("accepted") and r.get("type") == "loop"
+            if accepted and scale is not None and not 0.5 <= scale <= 2.0:
+                found.append(f"{path}: loop {r.get('frames')} accepted with scale {scale}")
+    return found
+
+
+def pytest_sessionfinish(session: pytest.Session, exitstatus: int) -> None:
+    """Every run the suite made (in every test process's folders) is checked: no accepted
+    loop needed a scale outside [0.5, 2]. A loop that does is no drift correction, and a
+    suite that passes with one has passed on a run it should have doubted."""
+    if hasattr(session.config, "workerinput"):
+        return  # the controlling process checks the workers' folders too
+    factory = getattr(session.config, "_tmp_path_factory", None)
+    if factory is None:
+        return
+    bad = _implausible_loops(factory.getbasetemp())
+    if bad:
+        reporter = session.config.pluginmanager.get_plugin("terminalreporter")
+        if reporter is not None:
+            reporter.write_line("loops accepted with an implausible scale:", red=True)
+            for line in bad:
+                reporter.write_line(f"  {line}", red=True)
+        session.exitstatus = pytest.ExitCode.TESTS_FAILED

@@ -158,6 +158,27 @@ def test_monocular_loop_within_one_percent_of_the_path(loop: Path, mono_run: Run
     assert ate <= MONO_ATE_PER_PATH * length
 
 
+def test_an_implausible_loop_is_refused_and_the_run_says_it_doubts_its_result(
+    loop: Path, tmp_path: Path
+) -> None:
+    # The loop of the rendered turn needs its scale changed by about 10 % and a few degrees:
+    # with a limit of 1 % either way it is implausible, so it is refused, the run.json and
+    # the summary say why, and the gate on doubts fails the run.
+    out = tmp_path / "run"
+    argv = ["run", "visual", str(loop), "--out", str(out), "--set", "mode=mono"]
+    argv += ["--set", "loop_max_scale_change=1.01", "--fail-if", "doubts > 0"]
+    result = runner.invoke(app, argv)
+    assert result.exit_code == 3, result.output
+    assert "the result may be wrong: a loop between frames" in result.output
+    info = json.loads((out / "run.json").read_text())
+    records = info["metrics"]["loop_closures"]
+    refused = [r for r in records if r["reason"].startswith("implausible")]
+    assert refused and not any(r["accepted"] for r in records)
+    assert "rescaled by" in refused[0]["reason"]
+    assert info["counts"]["doubts"] == len(info["metrics"]["doubts"]) >= 1
+    assert "was refused" in info["metrics"]["doubts"][0]
+
+
 # -- determinism --------------------------------------------------------------------------------
 
 

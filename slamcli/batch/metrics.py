@@ -18,8 +18,8 @@ def _stats(*prefixes: str) -> set[str]:
     return {f"{p}.{s}" for p in prefixes for s in _STATS}
 
 
-_FRAMES = {"frames_read", "frames_skipped", "frames_processed"}
-"""Counts every run has."""
+_FRAMES = {"frames_read", "frames_skipped", "frames_processed", "doubts"}
+"""Counts every run has (``doubts``: reasons the run gives to doubt its own result)."""
 
 _SE3 = _stats("ate", "rpe.trans", "rpe.rot_deg") | {"pairs", "scale"}
 """Accuracy after SE(3) or Sim(3) alignment, when the input has ground truth."""

@@ -275,3 +275,5 @@ def run_summary(outcome: RunOutcome) -> None:
     written(outcome.outputs)
     for problem in outcome.data_loss:
         warn(problem)
+    for doubt in outcome.metrics.get("doubts", ()):
+        warn(f"the result may be wrong: {doubt} (gate on it with --fail-if 'doubts > 0')")

@@ -110,6 +110,26 @@ class VisualConfig:
     loop_min_inliers: int = setting(
         40, help="least matched points of a verified loop after the guided search", min=10
     )
+    loop_max_scale_change: float = setting(
+        2.0,
+        help="monocular: the largest scale change a loop may correct, as a factor either way; "
+        "a loop needing more is refused, and the run records the doubt",
+        gt=1.0,
+    )
+    loop_max_rotation_deg: float = setting(
+        30.0,
+        help="the largest rotation a loop may correct at the keyframe that closes it; a loop "
+        "needing more is refused, and the run records the doubt",
+        unit="deg",
+        gt=0.0,
+    )
+    loop_max_drift: float = setting(
+        0.3,
+        help="the largest translation a loop may correct, as a share of the path the keyframes "
+        "travelled since the place was seen; a loop needing more is refused, and the run "
+        "records the doubt",
+        gt=0.0,
+    )
     global_ba: bool = setting(
         True, help="global bundle adjustment after a loop closure and at the end"
     )

@@ -34,12 +34,14 @@ I64 = NDArray[np.int64]
 class LoopClosing(Part):
     """Loops and merges found from each new keyframe (:meth:`detect`); ``records`` holds one
     record per verified candidate (type, keyframes, frames, score, inliers, accepted, reason,
-    and the correction it made)."""
+    and the correction it made); ``doubts`` says why the run's result may be wrong (a loop
+    refused because its correction was implausible)."""
 
     def __init__(self, shared: Shared, mapper: LocalMapping, ba: BundleAdjuster) -> None:
         super().__init__(shared)
         self.mapper, self.ba = mapper, ba
         self.records: list[dict[str, Any]] = []
+        self.doubts: list[str] = []
         self._consistent: list[tuple[set[int], int]] = []
 
     def detect(self, kf: Keyframe) -> None:
@@ -127,6 +129,16 @@ class LoopClosing(Part):
         m, deg = pose_change(inverse(kf.cam_from_world), inverse(corrected))
         record["correction_m"] = round(m, 5)
         record["correction_deg"] = round(deg, 4)
+        if not merge:
+            doubt = self._implausible(kf, cand, m, deg, scale)
+            if doubt is not None:
+                record["reason"] = f"implausible: {doubt}"
+                self.doubts.append(
+                    f"a loop between frames {cand.frame} and {kf.frame} was refused: {doubt}; "
+                    "the map had drifted that far or the place was mistaken, and the trajectory "
+                    f"after frame {cand.frame} may be wrong"
+                )
+                return False
         record["accepted"] = True
         record["reason"] = "verified"
         if merge:
@@ -138,6 +150,39 @@ class LoopClosing(Part):
         else:
             self._close_loop(kf, cand, corrected)
         return True
+
+    def _implausible(
+        self, kf: Keyframe, cand: Keyframe, m: float, deg: float, scale: float
+    ) -> str | None:
+        """Why a loop's correction (``m`` in map units, ``deg``, and for a monocular map
+        ``scale``) is more than the drift the map can have gathered since ``cand``, or None.
+
+        Drift grows with the path travelled: the translation may be at most ``loop_max_drift``
+        of the path of the keyframes between the two, the rotation ``loop_max_rotation_deg``,
+        the scale ``loop_max_scale_change`` either way. A loop needing more is no drift
+        correction: either tracking had already failed, or the place was mistaken, and
+        closing it would bend a good map to fit a bad match."""
+        cfg = self.config
+        if self.rig.mono and not (
+            1 / cfg.loop_max_scale_change <= scale <= cfg.loop_max_scale_change
+        ):
+            return (
+                f"it needs the map rescaled by {scale:.3g} "
+                f"(at most {cfg.loop_max_scale_change:g} either way)"
+            )
+        if deg > cfg.loop_max_rotation_deg:
+            return f"it turns the map by {deg:.1f} deg (at most {cfg.loop_max_rotation_deg:g})"
+        between = [
+            k for k in self.map.live(kf.map_id) if cand.id <= k.id <= kf.id and k.id != kf.id
+        ] + [kf]
+        centres = np.stack([k.center for k in between])
+        path = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
+        if m > cfg.loop_max_drift * path:
+            return (
+                f"it moves the map by {m:.3g} after a path of {path:.3g} "
+                f"(at most {cfg.loop_max_drift:g} of it)"
+            )
+        return None
 
     def _loop_sim3(
         self, kf: Keyframe, cand: Keyframe, record: dict[str, Any]

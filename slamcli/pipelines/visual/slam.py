@@ -341,6 +341,30 @@ class VisualSlam(PipelineBase):
         camera_from_body = inverse(body)
         return np.stack([inverse(p) @ camera_from_body for p in cam_from_world]).reshape(-1, 4, 4)
 
+    def _doubts(self, counts: dict[str, int]) -> list[str]:
+        """Why the result may be wrong, in words: loops refused as implausible (the first
+        few, then how many more), maps lost and joined again by a merge, frames left in maps
+        never merged into the main one."""
+        loops = self.loops.doubts
+        doubts = loops[:3]
+        if len(loops) > 3:
+            doubts.append(f"{len(loops) - 3} more loops were refused as implausible")
+        for r in self.loops.records:
+            if r["type"] == "merge" and r["accepted"]:
+                scale = f", scale {r['scale']:.3g}" if "scale" in r else ""
+                doubts.append(
+                    f"tracking was lost and a new map started; it was joined to the older map "
+                    f"where frames {r['frames'][0]} and {r['frames'][1]} see one place"
+                    f"{scale}: the poses on either side of the gap are only as good as that match"
+                )
+        apart = counts.get("frames_in_unmerged_maps", 0)
+        if apart:
+            doubts.append(
+                f"{apart} frames were tracked in maps never merged into the main one: tracking "
+                "was lost and the place not recognised again, so they have no pose"
+            )
+        return doubts
+
     def _result(self, main: int | None, trajectory: Trajectory) -> SlamResult:
         """The result of the run: ``trajectory``, the keyframes, points and essential graph of
         map ``main``, the counts and the records of maps, merges and loop closures."""
@@ -377,6 +401,7 @@ class VisualSlam(PipelineBase):
                 "maps": [m.to_dict() for m in self.atlas.maps],
                 "merges": self.atlas.merges,
                 "loop_closures": self.loops.records,
+                "doubts": self._doubts(counts),
             },
             counts=counts,
         )

@@ -126,8 +126,8 @@ class Tracking(Part):
         cur.cam_from_world = kf.cam_from_world.copy()
 
     def _track_motion(self, cur: Frame) -> F64 | None:
-        """Constant-velocity prediction, refined on the last frame's points found by
-        projection."""
+        """Constant-velocity prediction; the last frame's points are found by projection from
+        it, and the pose refined on them (monocular: from the pose they agree on)."""
         assert self.last is not None and self.velocity is not None
         assert self.last.cam_from_world is not None and self._last_points is not None
         predicted = self.velocity @ self.last.cam_from_world
@@ -151,6 +151,23 @@ class Tracking(Part):
             cur.depth[pairs[:, 1]],
             rounds=2,
         )
+        if self.rig.mono:
+            # Without depth, a camera sliding along a flat wall and one turning in place look
+            # nearly alike, and the refinement keeps the inliers that agree with the
+            # prediction: the pose keeps the predicted step in that direction, the velocity
+            # learns it, and a step once too short shrinks frame after frame, and the map's
+            # scale with it. The pose the matches agree on, found without the prediction, is
+            # taken instead when nearly as many agree on it.
+            found = absolute_pose(
+                self.rig.camera,
+                cur.keypoints[pairs[:, 1]],
+                world[pairs[:, 0]],
+                threshold_px=self.config.pnp_threshold_px,
+                min_inliers=10,
+                seed=self.config.seed,
+            )
+            if found is not None and (est is None or found.num_inliers >= 0.8 * est.num_inliers):
+                est = found
         if est is None or est.num_inliers < 10:
             self.stats.counts["motion_model_failed"] += 1
             return None
