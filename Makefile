@@ -11,7 +11,7 @@ PIP    := --quiet --disable-pip-version-check
 FUZZ_CASES ?= 10000
 FUZZ_SEED  ?= 0
 
-.PHONY: demo test setup syslibs bytecode lint bench fuzz constraints clean vocabulary
+.PHONY: demo test setup syslibs bytecode kernels lint bench fuzz constraints clean vocabulary
 
 demo: setup
 	$(VENV)/bin/slamcli demo --out runs/demo --force
@@ -19,7 +19,7 @@ demo: setup
 test: setup
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
 
-setup: syslibs $(STAMP) bytecode
+setup: syslibs $(STAMP) bytecode kernels
 
 syslibs:
 	@sh scripts/ensure-syslibs.sh
@@ -28,6 +28,17 @@ syslibs:
 # process (each run, each side process) would compile them again; compiled here, they are read.
 bytecode: $(STAMP)
 	@$(PY) -m compileall -q slamcli
+
+# numba compiles the path search, the car-like planner, the matchers and the renderer on their
+# first call (about a minute in all, on 2 cores) and caches the machine code beside each module.
+# Compiled here once per install, and again when a kernel module changes, so neither the demo,
+# the tests nor the timings they print pay for it.
+KERNELS := $(VENV)/.kernels
+kernels: $(KERNELS)
+$(KERNELS): $(STAMP) slamcli/kernels.py \
+            $(shell grep -rl --include='*.py' '^@numba.njit.*cache=True' slamcli)
+	@$(VENV)/bin/slamcli kernels
+	@touch $@
 
 # Installs are reproducible: every package comes at the exact version constraints.txt names, so
 # a fresh clone gets what the suite last passed with. pyproject.toml keeps ranges for users.

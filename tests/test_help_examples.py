@@ -32,6 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 # Commands whose examples read what another command's examples write come after it.
 ORDER = [
+    "kernels",
     "demo",
     "synth rgbd",
     "synth stereo",

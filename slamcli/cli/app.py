@@ -54,6 +54,7 @@ def _register() -> None:
         evaluate,
         graph_cmd,
         info,
+        kernels_cmd,
         map_cmd,
         merge,
         mesh,
@@ -78,6 +79,7 @@ def _register() -> None:
         vocab,
         graph_cmd,
         merge,
+        kernels_cmd,
     ):
         module.register(app)
 
@@ -131,6 +133,12 @@ _reflow_help(app)
 
 def main() -> None:
     """The ``slamcli`` command."""
+    from slamcli.kernels import on_compile
+
+    # A kernel compiled on first use makes the command wait seconds (the car-like planner half
+    # a minute) before anything moves: say why, once. Only here, in the installed command: code
+    # that invokes ``app`` itself (CliRunner) keeps its output as it was.
+    on_compile(render.compiling)
     try:
         try:
             app()

@@ -21,6 +21,7 @@ from rich.table import Table
 from slamcli.errors import SlamcliError
 
 if TYPE_CHECKING:
+    from slamcli.kernels import KernelGroup
     from slamcli.run import RunOutcome
     from slamcli.types import ProgressFn
 
@@ -61,6 +62,14 @@ def warn(msg: str) -> None:
 
 def note(msg: str) -> None:
     err.print(escape(msg))
+
+
+def compiling(group: KernelGroup) -> None:
+    """The one line, before the wait, that says a group of kernels is being compiled."""
+    err.print(
+        f"slamcli: compiling the {group.title} kernels for this machine, once "
+        f"(about {group.seconds:.0f} s)"
+    )
 
 
 def print_json(data: Any) -> None:

@@ -1,0 +1,289 @@
+"""The compiled kernels: numba functions, compiled on their first call and cached on disk.
+
+Path search, the car-like planner, descriptor matching, stereo matching and the synthetic
+room's shading are numba functions with ``cache=True``. numba compiles each for the argument
+types of its first call and for this machine's CPU, which takes from a few seconds (the grid
+search) to about half a minute (the car-like planner), and writes the machine code to its
+cache; every later process loads it from there in milliseconds.
+
+Where the cache lives is numba's choice: ``$NUMBA_CACHE_DIR`` when set; else the
+``__pycache__`` folder beside each kernel module when it is writable (a checkout, an editable
+install, a virtualenv the user owns); else the user's cache folder (``~/.cache/numba``, or
+under ``$XDG_CACHE_HOME``), one per user of a read-only install. A kernel module whose source
+changes is compiled again.
+
+:func:`warm` compiles (or loads) every kernel now, by running each group's real code on tiny
+inputs, so the argument types are the ones real runs use: ``make setup`` calls it once per
+install, so neither the demo, the tests nor their timings pay for compiling.
+:func:`on_compile` tells a caller (the command line, which says so on stderr) when a group is
+about to be compiled anyway.
+"""
+
+from __future__ import annotations
+
+import importlib.abc
+import importlib.machinery
+import importlib.util
+import sys
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from types import ModuleType
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
+    from slamcli.vision.features import Features
+
+# numpy is imported inside the functions: the command line imports this module at start-up,
+# before it knows whether the command needs numpy at all.
+
+
+@dataclass(frozen=True)
+class KernelGroup:
+    """Kernels that compile together: the modules one capability calls into.
+
+    Attributes:
+        name: short name (``"search"``, ``"car"``, ...).
+        title: what the kernels do, as a message names them ("path search").
+        modules: the modules defining the group's kernels.
+        seconds: about how long compiling the group takes (measured on a 2-core laptop-class
+            machine, with nothing cached), for the message that announces it.
+        warm: runs the group's code on tiny inputs, so every kernel is compiled or loaded.
+    """
+
+    name: str
+    title: str
+    modules: tuple[str, ...]
+    seconds: float
+    warm: Callable[[], None]
+
+
+def _warm_search() -> None:
+    import numpy as np
+
+    from slamcli.planning.search import grid_distances, load_kernels
+
+    load_kernels()
+    grid_distances(np.zeros((3, 3), dtype=bool), (1, 1))
+
+
+def _warm_car() -> None:
+    import numpy as np
+
+    from slamcli.planning.car import CarSettings, plan_car
+    from slamcli.planning.car_motion import CarLimits
+    from slamcli.planning.footprint import Footprint, footprint_cells
+    from slamcli.types import OccupancyGrid
+
+    # An 8 x 8 m yard with a wall around it: room to turn, so the search, the analytic
+    # expansions, the shortcuts, the clearance and the follower all run, in well under a second
+    # once compiled.
+    prob = np.zeros((80, 80), dtype=np.float32)
+    prob[[0, -1], :] = prob[:, [0, -1]] = 1.0
+    grid = OccupancyGrid(prob, 0.1)
+    limits = CarLimits(wheelbase_m=0.5, min_turn_radius_m=1.0)
+    footprint = Footprint.rectangle(0.8, 0.5)
+    for reverse in (True, False):
+        settings = CarSettings(footprint, min_turn_radius_m=1.0, reverse=reverse)
+        plan_car(grid, (2.0, 2.0, 0.0), (6.0, 6.0, 1.5), settings, limits)
+    footprint_cells(footprint, (2.0, 2.0, 0.0), grid)
+
+
+def _features(image: NDArray[Any]) -> Features:
+    from slamcli.vision.features import extract_orb
+
+    return extract_orb(image)
+
+
+def _texture(shift: int = 0) -> NDArray[Any]:
+    """A (120, 160) uint8 grey image with plenty of corners, ``shift`` pixels to the left."""
+    import numpy as np
+
+    rng = np.random.default_rng(0)
+    blocks = rng.integers(0, 256, size=(15, 21), dtype=np.uint8)
+    image = np.kron(blocks, np.ones((8, 8), dtype=np.uint8))
+    return np.ascontiguousarray(image[:120, shift : shift + 160])
+
+
+def _warm_matching() -> None:
+    import numpy as np
+
+    from slamcli.vision.matching import match_by_projection, match_ratio_grouped
+    from slamcli.vision.vocabulary.files import default_vocabulary
+
+    f = _features(_texture())
+    vocabulary = default_vocabulary()
+    nodes = vocabulary.nodes(f.descriptors, min(3, vocabulary.levels))
+    vocabulary.words(f.descriptors)
+    match_ratio_grouped(f.descriptors, nodes, f.descriptors, nodes, 0.8, 50)
+    # As tracking calls it: predicted pixels and the frame's (undistorted) keypoints in float64.
+    keypoints = f.keypoints.astype(np.float64)
+    match_by_projection(
+        keypoints,
+        f.descriptors,
+        np.full(len(f), 3.0),
+        keypoints,
+        f.descriptors,
+        kp_octaves=f.octaves,
+        predicted_octaves=f.octaves.astype(np.int64),
+        ratio=0.9,
+        max_distance=100,
+    )
+
+
+def _warm_stereo() -> None:
+    from slamcli.synth.rgbd import camera_for_size
+    from slamcli.types import StereoRig
+    from slamcli.vision.stereo import StereoSettings, match_stereo
+
+    left, right = _texture(), _texture(shift=4)
+    rig = StereoRig(camera_for_size(160, 120), 0.1)
+    match_stereo(
+        _features(left), _features(right), left, right, rig, StereoSettings(min_depth_m=0.2)
+    )
+
+
+def _warm_render() -> None:
+    import numpy as np
+
+    from slamcli.synth.rgbd import build_rgbd_world
+
+    world = build_rgbd_world(2, size=(32, 24))
+    pose = world.trajectory.world_from_body[0]
+    world.render(pose, np.random.default_rng(0))
+    world.render_colour(pose)
+
+
+GROUPS: tuple[KernelGroup, ...] = (
+    KernelGroup("search", "path search", ("slamcli.planning._search_kernels",), 5.0, _warm_search),
+    KernelGroup(
+        "car",
+        "car-like planning",
+        (
+            "slamcli.planning.hybrid_astar",
+            "slamcli.planning.footprint",
+            "slamcli.planning.curves",
+            "slamcli.planning.car_motion",
+        ),
+        25.0,
+        _warm_car,
+    ),
+    KernelGroup(
+        "matching",
+        "feature matching",
+        ("slamcli.vision._matching_kernels",),
+        8.0,
+        _warm_matching,
+    ),
+    KernelGroup(
+        "stereo", "stereo matching", ("slamcli.vision._stereo_kernels",), 8.0, _warm_stereo
+    ),
+    KernelGroup("render", "room rendering", ("slamcli.synth._render_kernels",), 4.0, _warm_render),
+)
+"""Every kernel module, in groups; a new module with ``cache=True`` kernels joins one."""
+
+
+def group_of(module: str) -> KernelGroup | None:
+    """The group whose kernels ``module`` defines, or None."""
+    return next((g for g in GROUPS if module in g.modules), None)
+
+
+def warm(
+    names: Sequence[str] | None = None, progress: Callable[[KernelGroup, float], None] | None = None
+) -> dict[str, float]:
+    """Compile, or load from the cache, every kernel of the groups ``names`` (all by default).
+
+    Returns the seconds each group took; ``progress(group, seconds)`` is called after each.
+
+    Raises:
+        KeyError: an unknown group name.
+    """
+    by_name = {g.name: g for g in GROUPS}
+    groups = [by_name[n] for n in names] if names is not None else list(GROUPS)
+    took: dict[str, float] = {}
+    for group in groups:
+        t0 = time.perf_counter()
+        group.warm()
+        took[group.name] = time.perf_counter() - t0
+        if progress is not None:
+            progress(group, took[group.name])
+    return took
+
+
+_notify: Callable[[KernelGroup], None] | None = None
+_announced: set[str] = set()
+_listening = False
+
+
+def on_compile(callback: Callable[[KernelGroup], None] | None) -> None:
+    """Have ``callback(group)`` called when a kernel of ``group`` is about to be compiled
+    (nothing in the cache fits this machine and these arguments): once per group and process,
+    before the wait. None stops the calls.
+
+    numba is not imported for this: loading it takes about half a second, which commands that
+    run no kernel should not pay. The listener joins numba's compile events when numba is
+    first imported.
+    """
+    global _notify
+    _notify = callback
+    if callback is None or _listening:
+        return
+    if "numba" in sys.modules:
+        _listen()
+    elif not any(isinstance(f, _AfterImport) for f in sys.meta_path):
+        sys.meta_path.insert(0, _AfterImport("numba", _listen))
+
+
+def _listen() -> None:
+    """Register the compile listener with numba (once)."""
+    global _listening
+    if _listening:
+        return
+    _listening = True
+    from numba.core import event
+
+    class Listener(event.Listener):
+        def on_start(self, ev: Any) -> None:
+            group = group_of(ev.data["dispatcher"].py_func.__module__)
+            if group is None or group.name in _announced or _notify is None:
+                return
+            _announced.add(group.name)
+            _notify(group)
+
+        def on_end(self, ev: Any) -> None:
+            return None
+
+    event.register("numba:compile", Listener())
+
+
+class _AfterImport(importlib.abc.MetaPathFinder):
+    """Runs ``then()`` right after the module ``name`` is first imported, by whoever imports
+    it; then leaves the import system as it found it."""
+
+    def __init__(self, name: str, then: Callable[[], None]) -> None:
+        self.name = name
+        self.then = then
+
+    def find_spec(
+        self, fullname: str, path: Sequence[str] | None, target: ModuleType | None = None
+    ) -> importlib.machinery.ModuleSpec | None:
+        if fullname != self.name:
+            return None
+        sys.meta_path.remove(self)
+        spec = importlib.util.find_spec(fullname)
+        if spec is None or spec.loader is None:
+            return spec
+        loader, then = spec.loader, self.then
+        load = loader.exec_module
+
+        def exec_module(module: ModuleType) -> None:
+            load(module)
+            then()
+
+        loader.exec_module = exec_module  # type: ignore[method-assign]
+        return spec
+
+
+__all__ = ["GROUPS", "KernelGroup", "group_of", "on_compile", "warm"]
