@@ -9,9 +9,21 @@ import typing
 from pathlib import Path
 
 import pytest
+import typer
+from typer.testing import CliRunner
 
+from slamcli.cli.app import app
 from slamcli.errors import ConfigError
-from slamcli.pipelines import PIPELINES, Evaluation, Pipeline, PipelineBase, get_pipeline, get_spec
+from slamcli.formats import SOURCES, source_class
+from slamcli.pipelines import (
+    INPUT_FORMATS,
+    PIPELINES,
+    Evaluation,
+    Pipeline,
+    PipelineBase,
+    get_pipeline,
+    get_spec,
+)
 
 
 @pytest.mark.parametrize("name", sorted(PIPELINES))
@@ -34,7 +46,54 @@ def test_declaration_matches_the_class(name: str) -> None:
     missing = [m for m in sorted(members) if not hasattr(pipe, m)]
     assert not missing, missing
     assert pipe.evaluation == spec.evaluation
+    if cls.frame_kinds is PipelineBase.frame_kinds:
+        assert spec.reads == (cls.consumes,)
     pipe.close()
+
+
+def _source_kinds(name: str) -> set[str]:
+    """The frame kinds the source class of format ``name`` gives: its ``frame_kinds``, or the
+    ``FRAME_KINDS`` of the module it (or the class it extends) is defined in."""
+    for cls in source_class(name).__mro__:
+        kinds = vars(cls).get("frame_kinds") or vars(sys.modules[cls.__module__]).get("FRAME_KINDS")
+        if kinds:
+            return set(kinds)
+    raise AssertionError(f"{name}: no frame kinds found")
+
+
+def test_input_formats_are_the_sources_with_their_kinds() -> None:
+    """The help's table of formats has every source, with the kinds its class gives."""
+    assert set(INPUT_FORMATS) == set(SOURCES)
+    for name, fmt in INPUT_FORMATS.items():
+        assert set(fmt.kinds) == _source_kinds(name), name
+
+
+LOGS = {"mcap", "rosbag1", "rosbag2"}
+READS = {
+    "odometry": {"tum", "redwood"} | LOGS,
+    "dense": {"tum", "redwood"} | LOGS,
+    "visual": {"tum", "redwood", "kitti", "euroc"} | LOGS,
+    "ekf": {"mrclam", "victoria", "landmarks"} | LOGS,
+    "graph": {"mrclam", "victoria", "landmarks"} | LOGS,
+    "lidar": {"carmen"} | LOGS,
+}
+
+
+@pytest.mark.parametrize("name", sorted(PIPELINES))
+def test_run_help_names_what_the_pipeline_reads(name: str) -> None:
+    """``run NAME --help`` describes INPUT as the formats that pipeline reads, and no other."""
+    assert sorted(READS) == sorted(PIPELINES)
+    spec = PIPELINES[name]
+    assert set(spec.formats) == READS[name]
+    command = typer.main.get_command(app).commands["run"].commands[name]
+    (argument,) = [p for p in command.params if p.name == "input"]
+    for fmt, described in INPUT_FORMATS.items():
+        without_article = described.noun.split(" ", 1)[1]
+        named = without_article in argument.help
+        assert named == (fmt in READS[name]), (fmt, argument.help)
+    shown = CliRunner().invoke(app, ["run", name, "--help"], terminal_width=400)
+    assert shown.exit_code == 0
+    assert argument.help in " ".join(shown.output.replace("│", " ").split())
 
 
 def test_unknown_pipeline_names_the_known_ones() -> None:

@@ -94,14 +94,7 @@ Baseline = Annotated[
 
 def _command(pipeline: str) -> Any:
     def command(
-        input: Annotated[
-            Path,
-            typer.Argument(
-                help="A TUM RGB-D folder, an MCAP log, an MRCLAM folder, a Victoria Park file "
-                "or a 'slamcli synth landmarks' folder.",
-                show_default=False,
-            ),
-        ],
+        input: Path,
         out: Out,
         force: Force = False,
         max_frames: MaxFrames = None,
@@ -125,6 +118,11 @@ def _command(pipeline: str) -> Any:
         exit_if_data_lost(outcome)
 
     command.__doc__ = PIPELINES[pipeline].doc
+    # INPUT names the formats this pipeline reads. Set as an object: the module's annotations
+    # are strings evaluated in its globals, where ``pipeline`` does not exist.
+    command.__annotations__["input"] = Annotated[
+        Path, typer.Argument(help=PIPELINES[pipeline].input_help, show_default=False)
+    ]
     return boundary(source_options()(command))
 
 

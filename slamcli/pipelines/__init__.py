@@ -99,6 +99,51 @@ class PipelineBase:
 
 
 @dataclass(frozen=True)
+class InputFormat:
+    """An input format as the run commands' help names it.
+
+    Attributes:
+        noun: what the user has, with its article ("a TUM RGB-D folder").
+        kinds: the frame kinds its source class gives (``slamcli.formats.SOURCES``).
+        topics: a log of topics, which gives a kind only when it has a topic of it.
+    """
+
+    noun: str
+    kinds: tuple[str, ...]
+    topics: bool = False
+
+
+_LOG_KINDS = ("rgbd", "image", "odometry", "landmarks", "imu", "scan", "stereo")
+
+INPUT_FORMATS: dict[str, InputFormat] = {
+    "tum": InputFormat("a TUM RGB-D folder", ("rgbd", "image", "imu")),
+    "redwood": InputFormat("an Open3D / Redwood RGB-D folder", ("rgbd", "image")),
+    "kitti": InputFormat("a KITTI odometry folder", ("stereo", "image")),
+    "euroc": InputFormat("a EuRoC / ASL folder", ("stereo", "imu")),
+    "mrclam": InputFormat("an MRCLAM folder", ("odometry", "landmarks")),
+    "victoria": InputFormat("a Victoria Park file", ("odometry", "landmarks")),
+    "landmarks": InputFormat("a 'slamcli synth landmarks' folder", ("odometry", "landmarks")),
+    "carmen": InputFormat("a CARMEN laser log", ("scan", "odometry")),
+    "mcap": InputFormat("an MCAP log", _LOG_KINDS, topics=True),
+    "rosbag1": InputFormat("a ROS 1 bag", _LOG_KINDS, topics=True),
+    "rosbag2": InputFormat("a ROS 2 bag folder", _LOG_KINDS, topics=True),
+}
+"""Every format of ``slamcli.formats.SOURCES`` (same keys; the kinds are the ones its source
+class gives, which the tests hold this table to), in the order the help names them. Kept here
+because the command line builds its help at start-up, where importing the sources is too
+slow."""
+
+_KIND_NOUNS = {
+    "rgbd": "colour and depth images",
+    "image": "colour images",
+    "stereo": "a left and a right image topic",
+    "scan": "laser scans",
+    "odometry": "odometry",
+    "landmarks": "landmark observations",
+}
+
+
+@dataclass(frozen=True)
 class PipelineSpec:
     """What is known about a pipeline before its module is imported.
 
@@ -111,6 +156,8 @@ class PipelineSpec:
             after SE(2) alignment, landmark RMSE, NEES; the pipeline has ``set_start(pose)``
             taking the source's start pose (x, y, yaw) or None), ``se3`` or ``sim3`` (ATE and
             RPE after that alignment, as ``slamcli eval --align``).
+        reads: the frame kinds it can run on, one set per way of running: an input that
+            gives every kind of one set will do.
     """
 
     target: str
@@ -118,11 +165,39 @@ class PipelineSpec:
     example: str
     produces: tuple[str, ...]
     evaluation: Evaluation
+    reads: tuple[tuple[str, ...], ...]
 
     @property
     def doc(self) -> str:
         """The help text with the example, as a command docstring."""
         return f"{self.help}\n\nExample: [bold]{self.example}[/]"
+
+    @property
+    def formats(self) -> tuple[str, ...]:
+        """The :data:`INPUT_FORMATS` it reads: those giving every kind of one of its sets."""
+        return tuple(
+            name
+            for name, fmt in INPUT_FORMATS.items()
+            if any(set(kinds) <= set(fmt.kinds) for kinds in self.reads)
+        )
+
+    @property
+    def input_help(self) -> str:
+        """The help of ``slamcli run NAME INPUT``: the formats it reads, and what a log of
+        topics must hold for it."""
+        files = [INPUT_FORMATS[f].noun for f in self.formats if not INPUT_FORMATS[f].topics]
+        logs = [INPUT_FORMATS[f].noun for f in self.formats if INPUT_FORMATS[f].topics]
+        parts = [_series(files)] if files else []
+        if logs:
+            needs = [" and ".join(_KIND_NOUNS[k] for k in kinds) for kinds in self.reads]
+            parts.append(f"{_series(logs)} with {_series(needs)}")
+        text = "; or ".join(parts)
+        return text[0].upper() + text[1:] + "."
+
+
+def _series(items: list[str]) -> str:
+    """``a``, ``a or b``, ``a, b or c``: one of the items."""
+    return items[0] if len(items) == 1 else ", ".join(items[:-1]) + " or " + items[-1]
 
 
 PIPELINES: dict[str, PipelineSpec] = {
@@ -138,6 +213,7 @@ odometry'. Exits with 3 when frames had to be skipped.""",
         "--max-frames 10 --force",
         produces=("trajectory.tum", "report.png"),
         evaluation="se3",
+        reads=(("rgbd",),),
     ),
     "dense": PipelineSpec(
         target="slamcli.pipelines.dense:DenseSlam",
@@ -152,6 +228,7 @@ dump dense'. Exits with 3 when frames had to be skipped.""",
         "--set voxel_size_m=0.02 --force",
         produces=("trajectory.tum", "keyframes.tum", "mesh.ply", "points.ply", "report.png"),
         evaluation="se3",
+        reads=(("rgbd",),),
     ),
     "visual": PipelineSpec(
         target="slamcli.pipelines.visual:VisualSlam",
@@ -171,6 +248,7 @@ config dump visual'. Exits with 3 when frames had to be skipped, or when a --fai
         "--fail-if 'ate.rmse > 0.01' --fail-if 'frames.lost > 0'",
         produces=("trajectory.tum", "keyframes.tum", "points.ply", "graph.g2o", "report.png"),
         evaluation="se3",
+        reads=(("rgbd",), ("stereo",), ("image",)),
     ),
     "ekf": PipelineSpec(
         target="slamcli.pipelines.ekf:EkfSlam",
@@ -192,6 +270,7 @@ ground truth). --map adds an occupancy map. Settings: 'slamcli config dump ekf'.
             "report.png",
         ),
         evaluation="se2",
+        reads=(("odometry", "landmarks"),),
     ),
     "graph": PipelineSpec(
         target="slamcli.pipelines.graph:GraphSlam",
@@ -209,6 +288,7 @@ alignment. Settings: 'slamcli config dump graph'.""",
         example="slamcli run graph sample_data/landmarks --out runs/landmarks_graph --force",
         produces=("trajectory.tum", "landmarks.csv", "report.png"),
         evaluation="se2",
+        reads=(("odometry", "landmarks"),),
     ),
     "lidar": PipelineSpec(
         target="slamcli.pipelines.lidar:LidarSlam",
@@ -237,6 +317,7 @@ ground truth: --groundtruth FILE, or 'log' for a corrected laser log's own poses
             "report.png",
         ),
         evaluation="se2",
+        reads=(("scan",),),
     ),
 }
 """Pipelines by name. Adding one is one entry here and one module."""
