@@ -34,6 +34,7 @@ class RunOutcome:
     Attributes:
         record: run.json as written (its ``metrics`` and ``counts`` are ``metrics`` and
             ``counts``); gates read it here.
+        skipped_hint: the source's hint about its skipped frames (None: images).
     """
 
     run_dir: Path
@@ -46,6 +47,7 @@ class RunOutcome:
     data_loss: list[str] = field(default_factory=list)
     evaluation: str = "se3"
     record: dict[str, Any] = field(default_factory=dict)
+    skipped_hint: str | None = None
 
 
 @dataclass
@@ -152,6 +154,7 @@ def run_pipeline(
         list(tracked.stats.data_loss),
         evaluation=evaluation,
         record=record,
+        skipped_hint=tracked.stats.skipped_hint,
     )
 
 
@@ -443,7 +446,8 @@ def data_loss_error(outcome: RunOutcome) -> DataLossError | None:
         return DataLossError(
             f"{where}: {skipped} frame(s) skipped because they were missing or unreadable; "
             "the results above exclude them",
-            hint=f"'slamcli info {where} --deep' names every unreadable image",
+            hint=outcome.skipped_hint
+            or f"'slamcli info {where} --deep' names every unreadable image",
         )
     if outcome.data_loss:
         return DataLossError(

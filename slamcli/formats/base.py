@@ -114,6 +114,9 @@ class ReadStats:
     skipped: int = 0
     skipped_names: list[str] = field(default_factory=list)
     data_loss: list[str] = field(default_factory=list)
+    skipped_hint: str | None = None
+    """What a user can do about the skipped frames, from a source whose frames are not images
+    (a laser log's damaged lines); None: the hint for missing or unreadable images."""
 
 
 class Source(Protocol):

@@ -67,7 +67,9 @@ corrected log; a SLAM run judged against it should use ``odometry="none"``), Non
 gives none; ``max_range`` (metres) is above; ``strict`` is below.
 
 **Damage.** A line with the wrong number of fields, a non-number, a beam count that does not
-match its fields, or undecodable bytes is skipped and counted (``info()``, ``stats.skipped`` and
+match its fields, undecodable bytes, or more than
+:data:`~slamcli.formats.text.MAX_LINE_BYTES` (1 MiB: the line is read through in pieces, never
+held whole) is skipped and counted (``info()``, ``stats.skipped`` and
 ``stats.data_loss``, so a run ends with exit code 3), as is the end of a cut-off gzip stream:
 the MCAP and TUM sources read around damage the same way. With ``strict=True`` it is a
 :class:`~slamcli.errors.FormatError` naming ``file:line`` and what was expected, at open.

@@ -29,7 +29,14 @@ from slamcli.formats.carmen.layout import (
     xyt,
 )
 from slamcli.formats.carmen.stamps import repair_stamps
-from slamcli.formats.text import parse_count, parse_floats, parse_stamp_ns
+from slamcli.formats.text import (
+    MAX_LINE_BYTES,
+    bounded_lines,
+    line_too_long,
+    parse_count,
+    parse_floats,
+    parse_stamp_ns,
+)
 from slamcli.geometry import between_planar, planar_to_se3, wrap_angle
 from slamcli.types import OdometryFrame, ProgressFn, ScanFrame, Trajectory
 
@@ -47,7 +54,7 @@ GROUNDTRUTH_CHOICES = (None, "log")
 _INT64_MAX = 2**63 - 1
 _ROBOTLASER = re.compile(r"ROBOTLASER\d", re.ASCII)
 _RAWLASER = re.compile(r"RAWLASER\d", re.ASCII)
-_LINES = Generator[tuple[int, bytes], None, None]
+_LINES = Generator[tuple[int, bytes | None], None, None]
 
 
 class _Entry(NamedTuple):
@@ -145,8 +152,11 @@ class CarmenSource(SourceBase):
             lines.close()
         return entries
 
-    def _entry(self, number: int, raw: bytes) -> _Entry | None:
-        """The entry of one line; None for blank lines, comments, skipped and damaged ones."""
+    def _entry(self, number: int, raw: bytes | None) -> _Entry | None:
+        """The entry of one line; None for blank lines, comments, skipped and damaged ones
+        (``raw`` None: a line longer than :data:`MAX_LINE_BYTES`, damaged)."""
+        if raw is None:
+            return self._damaged(line_too_long(self.path, number))
         try:
             text = raw.decode("utf-8").strip()
         except UnicodeDecodeError as exc:
@@ -409,6 +419,12 @@ class CarmenSource(SourceBase):
         return self._frames(odometry, "scan" in wanted)
 
     def _count_skipped(self) -> None:
+        if self.malformed:
+            self.stats.skipped_hint = (
+                f"the skipped frames are damaged lines of the log: 'slamcli info {self.path}' "
+                "counts them and names the first, with what is wrong with its fields or "
+                "readings; --strict stops at the first instead"
+            )
         self.stats.skipped += len(self.malformed)
         self.stats.skipped_names.extend(f"{self.path.name}:{line}" for line, _ in self.malformed)
         for loss in self._losses():
@@ -586,14 +602,16 @@ def _open_binary(path: Path) -> IO[bytes]:
 
 
 def _raw_lines(path: Path) -> _LINES:
+    """Each line's number and bytes; None for a line over :data:`MAX_LINE_BYTES`, read through
+    without being held."""
     with _open_binary(path) as fh:
-        yield from enumerate(fh, start=1)
+        yield from bounded_lines(fh, MAX_LINE_BYTES)
 
 
 def _fields_at(lines: _LINES, wanted: int, path: Path) -> list[str]:
     try:
         for number, raw in lines:
-            if number == wanted:
+            if number == wanted and raw is not None:
                 return raw.decode("utf-8", errors="replace").split()
     except (EOFError, zlib.error, gzip.BadGzipFile):
         pass
