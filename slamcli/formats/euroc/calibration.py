@@ -35,7 +35,12 @@ from numpy.typing import NDArray
 
 from slamcli.errors import FormatError, InputError
 from slamcli.formats.images import size_problem
-from slamcli.formats.text import yaml_problem
+from slamcli.formats.text import (
+    MAX_YAML_BYTES,
+    check_yaml_expansion,
+    read_limited_text,
+    yaml_problem,
+)
 from slamcli.geometry.se3 import inverse, make_pose
 from slamcli.types import PinholeCamera, StereoRig
 
@@ -164,11 +169,13 @@ def read_sensor_yaml(path: str | Path) -> dict[str, Any]:
 
     Raises:
         InputError: the file does not exist or cannot be read.
-        FormatError: not valid YAML, or not a mapping of keys.
+        FormatError: not valid YAML, or not a mapping of keys; larger than
+            :data:`~slamcli.formats.text.MAX_YAML_BYTES` or, its aliases expanded, than
+            :data:`~slamcli.formats.text.MAX_YAML_VALUES` values.
     """
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8-sig")
+        text = read_limited_text(p, MAX_YAML_BYTES, "a sensor.yaml", _CAMERA_HINT)
     except FileNotFoundError:
         raise InputError(f"{p}: no such file", hint=_CAMERA_HINT) from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -182,6 +189,7 @@ def read_sensor_yaml(path: str | Path) -> dict[str, Any]:
     except yaml.YAMLError as exc:
         problem, line = yaml_problem(exc, text)
         raise FormatError(p, f"not valid YAML ({problem})", line) from None
+    check_yaml_expansion(p, data, hint=_CAMERA_HINT)
     if not isinstance(data, dict):
         found = "an empty file" if data is None else f"a {type(data).__name__}"
         raise FormatError(p, f"expected a mapping of keys, found {found}")

@@ -26,6 +26,7 @@ places the rectified left camera on it.
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Collection, Iterator
 from dataclasses import dataclass
 from functools import cached_property
@@ -74,7 +75,11 @@ GROUNDTRUTH_BESIDE = ("groundtruth_body.txt", "groundtruth.txt", "groundtruth.tu
 """Trajectory files looked for beside ``mav0/`` (not read: named in ``info`` only)."""
 
 NAMED = 3
-"""Images named in one problem line; ``details`` lists them all."""
+"""Images named in one problem line."""
+
+MISSING_KEPT = 20
+"""Missing images named per camera in ``info`` (and so in run.json); the others are counted.
+A ``data.csv`` may list millions of images that are not there: their names are its rows."""
 
 
 @dataclass(frozen=True)
@@ -86,12 +91,20 @@ class ImageCsv:
         stamps_ns: (N,) int64 nanoseconds.
         files: N file names as listed.
         lines: N 1-based line numbers, for messages.
+        listed: rows the file lists, kept or not.
+        missing: (``existing_only``) the first :data:`MISSING_KEPT` rows left out because
+            their image is not in ``data/``, as ``"cam0/data/x.png (listed at
+            cam0/data.csv:97)"``.
+        missing_count: how many rows were left out so.
     """
 
     path: Path
     stamps_ns: NDArray[np.int64]
     files: tuple[str, ...]
     lines: tuple[int, ...]
+    listed: int = 0
+    missing: tuple[str, ...] = ()
+    missing_count: int = 0
 
     def __len__(self) -> int:
         return len(self.files)
@@ -105,17 +118,26 @@ class ImageCsv:
         return f"{self.path.parent.name}/{self.path.name}:{self.lines[k]}"
 
 
-def read_image_csv(path: str | Path) -> ImageCsv:
+def read_image_csv(path: str | Path, existing_only: bool = False) -> ImageCsv:
     """Read an ASL camera ``data.csv`` (``#timestamp [ns],filename`` lines).
+
+    With ``existing_only`` the rows whose image is not in ``data/`` beside the file are left
+    out as they are read, counted and the first :data:`MISSING_KEPT` named, so a list of
+    millions of absent images costs neither memory nor a file-system lookup per row (``data/``
+    is listed once).
 
     Raises:
         InputError: the file is missing.
         FormatError: a line without two fields or with a bad stamp (names file:line).
     """
     p = Path(path)
+    folder, camera = p.parent / "data", p.parent.name
+    present = _image_names(folder) if existing_only else None
     stamps: list[int] = []
     files: list[str] = []
     lines: list[int] = []
+    missing: list[str] = []
+    listed = missing_count = 0
     for number, fields in iter_data_lines(p, delimiter=","):
         if len(fields) != 2 or not fields[1]:
             raise FormatError(
@@ -124,12 +146,44 @@ def read_image_csv(path: str | Path) -> ImageCsv:
                 number,
                 hint="an ASL camera data.csv has one 'stamp_ns,stamp_ns.png' line per image",
             )
-        stamps.append(parse_count(fields[0], p, number, "timestamp", "whole nanoseconds"))
-        files.append(fields[1])
+        stamp = parse_count(fields[0], p, number, "timestamp", "whole nanoseconds")
+        listed += 1
+        name = fields[1]
+        if present is not None and not _exists(folder, name, present):
+            missing_count += 1
+            if len(missing) < MISSING_KEPT:
+                missing.append(f"{camera}/data/{name} (listed at {camera}/{p.name}:{number})")
+            continue
+        stamps.append(stamp)
+        files.append(name)
         lines.append(number)
     t = np.asarray(stamps, dtype=np.int64)
     order = np.argsort(t, kind="stable")
-    return ImageCsv(p, t[order], tuple(files[i] for i in order), tuple(lines[i] for i in order))
+    return ImageCsv(
+        p,
+        t[order],
+        tuple(files[i] for i in order),
+        tuple(lines[i] for i in order),
+        listed,
+        tuple(missing),
+        missing_count,
+    )
+
+
+def _image_names(folder: Path) -> frozenset[str]:
+    """Names of the regular files (or links to them) in ``folder``; empty when it is none."""
+    try:
+        with os.scandir(folder) as entries:
+            return frozenset(e.name for e in entries if e.is_file())
+    except OSError:
+        return frozenset()
+
+
+def _exists(folder: Path, name: str, present: frozenset[str]) -> bool:
+    """Whether image ``name`` (a file name, or a path below ``folder``) is a file."""
+    if name in present:
+        return True
+    return ("/" in name or os.sep in name) and (folder / name).is_file()
 
 
 def read_imu_csv(
@@ -217,8 +271,8 @@ class EurocSource(SourceBase):
             )
         self.max_dt = float(max_dt)
         self.stats = ReadStats()
-        self.left_csv = read_image_csv(self.mav / "cam0" / "data.csv")
-        self.right_csv = read_image_csv(self.mav / "cam1" / "data.csv")
+        self.left_csv = read_image_csv(self.mav / "cam0" / "data.csv", existing_only=True)
+        self.right_csv = read_image_csv(self.mav / "cam1" / "data.csv", existing_only=True)
         self.left_sensor: CameraSensor = read_camera_sensor(self.mav / "cam0" / "sensor.yaml")
         self.right_sensor: CameraSensor = read_camera_sensor(self.mav / "cam1" / "sensor.yaml")
         self.rectification: StereoRectification = rectify_stereo(
@@ -230,24 +284,15 @@ class EurocSource(SourceBase):
             if (self._imu_folder / "sensor.yaml").is_file()
             else None
         )
-        left_ok = self._existing(self.left_csv)
-        right_ok = self._existing(self.right_csv)
-        self.missing = [
-            f"{c.path.parent.name}/data/{c.files[k]} (listed at {c.where(k)})"
-            for c, ok in ((self.left_csv, left_ok), (self.right_csv, right_ok))
-            for k in np.flatnonzero(~ok).tolist()
-        ]
+        self.missing = [*self.left_csv.missing, *self.right_csv.missing]
+        """The first missing images of each camera (:data:`MISSING_KEPT`), named."""
+        self.missing_count = self.left_csv.missing_count + self.right_csv.missing_count
+        """How many listed images are missing."""
         li, ri = associate_stamps(
-            self.left_csv.stamps_ns[left_ok],
-            self.right_csv.stamps_ns[right_ok],
-            round(self.max_dt * 1e9),
+            self.left_csv.stamps_ns, self.right_csv.stamps_ns, round(self.max_dt * 1e9)
         )
-        self.left_index = np.flatnonzero(left_ok)[li]
-        self.right_index = np.flatnonzero(right_ok)[ri]
-
-    @staticmethod
-    def _existing(csv: ImageCsv) -> NDArray[np.bool_]:
-        return np.array([csv.image(k).is_file() for k in range(len(csv))], dtype=bool)
+        self.left_index = np.asarray(li, dtype=np.int64)
+        self.right_index = np.asarray(ri, dtype=np.int64)
 
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
@@ -402,8 +447,7 @@ class EurocSource(SourceBase):
         problems: list[str] = []
         rig = self.rig
         streams = [
-            StreamInfo.from_stamps("cam0", "image", self.left_csv.stamps_ns, "mav0/cam0/data.csv"),
-            StreamInfo.from_stamps("cam1", "image", self.right_csv.stamps_ns, "mav0/cam1/data.csv"),
+            *(self._camera_stream(csv) for csv in (self.left_csv, self.right_csv)),
             StreamInfo.from_stamps("stereo", "stereo", self.pair_stamps_ns, "rectified pairs"),
         ]
         details: dict[str, Any] = {
@@ -419,16 +463,12 @@ class EurocSource(SourceBase):
             "body_from_left": rig.body_from_left.tolist(),
             "pair_max_dt_s": self.max_dt,
             "missing_images": list(self.missing),
+            "missing_images_count": self.missing_count,
             "unpaired_left": len(self.left_csv) - len(self),
             "unpaired_right": len(self.right_csv) - len(self),
         }
-        if self.missing:
-            more = f", and {len(self.missing) - NAMED} more" if len(self.missing) > NAMED else ""
-            problems.append(
-                f"{len(self.missing)} listed image(s) missing: "
-                + "; ".join(self.missing[:NAMED])
-                + more
-            )
+        if self.missing_count:
+            problems.append(self._missing_problem())
         self._imu_info(streams, details, problems)
         gt = self.groundtruth()
         if gt is not None:
@@ -464,6 +504,30 @@ class EurocSource(SourceBase):
             ),
             problems=problems,
             details=details,
+        )
+
+    def _camera_stream(self, csv: ImageCsv) -> StreamInfo:
+        """A camera's images that exist, and how many its ``data.csv`` lists beyond them."""
+        where = f"mav0/{csv.path.parent.name}/{csv.path.name}"
+        if csv.missing_count:
+            where += f" ({csv.listed} listed, {csv.missing_count} missing)"
+        return StreamInfo.from_stamps(csv.path.parent.name, "image", csv.stamps_ns, where)
+
+    def _missing_problem(self) -> str:
+        """One line: how many listed images are missing, the first few, and where the rest
+        are (the rows of each camera's ``data.csv`` whose image is not in its ``data/``)."""
+        count = self.missing_count
+        named = "; ".join(self.missing[:NAMED])
+        if count <= NAMED:
+            return f"{count} listed image(s) missing: {named}"
+        cameras = " and ".join(
+            f"{c.path.parent.name}/{c.path.name} ({c.missing_count})"
+            for c in (self.left_csv, self.right_csv)
+            if c.missing_count
+        )
+        return (
+            f"{count} listed image(s) missing: {named}, and {count - NAMED} more: the rows of "
+            f"{cameras} whose image is not in data/ beside it"
         )
 
     def _imu_info(
