@@ -37,6 +37,14 @@ from slamcli.interrupts import watched
 RUN_SCHEMA_VERSION = 1
 """Version of the run.json layout (documented in docs/run-folders.md)."""
 
+LIST_LIMIT = 100
+"""Longest list of names (strings) run.json records in full; a longer one (a source's missing
+or unreadable files, damage found while reading) is summarised by :func:`summarise_lists`."""
+LIST_KEPT = 10
+"""Names a summarised list keeps, its first."""
+_WHOLE = ("argv", "inputs", "outputs")
+"""run.json entries never summarised: the command line, the inputs and the files written."""
+
 _PACKAGES = (
     "numpy",
     "scipy",
@@ -386,11 +394,33 @@ class RunDir:
         }
         if extra:
             record.update(extra)
+        where = str(inputs[0].get("path", "")) if inputs else ""
+        record = {k: v if k in _WHOLE else summarise_lists(v, where) for k, v in record.items()}
         text = json.dumps(record, indent=2) + "\n"
         self.write_text("run.json", text)
         # As a reader of the file sees it (tuples as lists, keys as strings).
         written: dict[str, Any] = json.loads(text)
         return written
+
+
+def summarise_lists(value: Any, source: str = "") -> Any:
+    """``value`` with every list of more than :data:`LIST_LIMIT` strings, at any depth,
+    replaced by ``{"count", "first", "rest"}``: how many, the first :data:`LIST_KEPT`, and
+    where the others are (``source``: the input, whose ``info`` reports its own lists).
+
+    A source can name millions of files that are not there; run.json stays a summary of the
+    run, kilobytes, whatever the input lists.
+    """
+    if isinstance(value, dict):
+        return {k: summarise_lists(v, source) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        if len(value) > LIST_LIMIT and all(isinstance(v, str) for v in value):
+            rest = f"the other {len(value) - LIST_KEPT} are not recorded here"
+            if source:
+                rest += f"; 'slamcli info {source} --json' reports the input's lists"
+            return {"count": len(value), "first": list(value[:LIST_KEPT]), "rest": rest}
+        return [summarise_lists(v, source) for v in value]
+    return value
 
 
 _LIVE_STAGING: set[Path] = set()
