@@ -15,6 +15,8 @@ MCAP_MAGIC = b"\x89MCAP0\r\n"
 """The bytes every MCAP file starts (and ends) with."""
 
 ROSBAG_MAGIC = b"#ROSBAG V2.0\n"
+ROSRECORD_MAGIC = b"#ROSRECORD V"
+"""The start of the first line of ROS bags of formats 1.1 and 1.2 (ROS 0.4 to 1.0, 2009-2010)."""
 """The line a ROS 1 bag (format 2.0) starts with."""
 
 ROSBAG2_METADATA = "metadata.yaml"
@@ -76,14 +78,16 @@ def mcap(path: str | Path) -> bool:
 
 
 def rosbag1(path: str | Path) -> bool:
-    """A ``.bag`` file, or any file starting with ``#ROSBAG V`` (a ROS 1 bag)."""
+    """A ``.bag`` file, or any file starting with ``#ROSBAG V`` (a ROS 1 bag) or
+    ``#ROSRECORD V`` (a bag of the formats before 2.0, which the reader names and refuses)."""
     p = Path(path)
     if not p.is_file():
         return False
     if p.suffix.lower() == ".bag":
         return True
     with p.open("rb") as fh:
-        return fh.read(len(ROSBAG_MAGIC)).startswith(ROSBAG_MAGIC[:9])
+        head = fh.read(len(ROSRECORD_MAGIC))
+    return head.startswith((ROSBAG_MAGIC[:9], ROSRECORD_MAGIC))
 
 
 def rosbag2(path: str | Path) -> bool:
@@ -195,6 +199,7 @@ __all__ = [
     "REDWOOD_COLOUR_FOLDERS",
     "ROSBAG2_METADATA",
     "ROSBAG_MAGIC",
+    "ROSRECORD_MAGIC",
     "VICTORIA_KEYWORDS",
     "carmen",
     "euroc",

@@ -65,7 +65,7 @@ from slamcli.formats.rosbag.ros1 import (
     read_top_record,
     record_at,
 )
-from slamcli.formats.sniff import ROSBAG_MAGIC
+from slamcli.formats.sniff import ROSBAG_MAGIC, ROSRECORD_MAGIC
 from slamcli.formats.text import format_stamp
 
 logger = logging.getLogger(__name__)
@@ -74,6 +74,8 @@ _BLOCK = 4096
 """Index entries turned into Python values at a time."""
 _OPEN_CHUNKS = 3
 """Decompressed chunks kept while reading through the index."""
+_FIRST_LINE_BYTES = 32
+"""Bytes read to tell a bag's format by its first line (``#ROSRECORD V1.2\n`` is 16)."""
 
 _Entry = tuple[int, int, int, ChannelInfo, bytes]
 """(log time, chunk offset, offset in the chunk, channel, data) of a walked message; the first
@@ -156,7 +158,8 @@ class Ros1BagLog(Closing):
 
     Raises:
         InputError: the file is missing, empty or (``strict``) truncated.
-        FormatError: the file is not a ROS 1 bag of format 2.0.
+        FormatError: the file is not a ROS 1 bag of format 2.0 (a bag of format 1.2 is named
+            as one, with how to convert it).
     """
 
     def __init__(
@@ -566,7 +569,7 @@ def _check_file(path: Path) -> int:
     try:
         size = path.stat().st_size
         with path.open("rb") as fh:
-            head = fh.read(len(ROSBAG_MAGIC))
+            head = fh.read(_FIRST_LINE_BYTES)
     except FileNotFoundError:
         raise InputError(
             f"{path}: no such file; expected a ROS 1 bag", hint="check the path"
@@ -583,8 +586,10 @@ def _check_file(path: Path) -> int:
             f"{path}: empty file (0 bytes); expected a ROS 1 bag",
             hint="the recording stopped before anything was written; record it again",
         )
-    if head == ROSBAG_MAGIC:
+    if head.startswith(ROSBAG_MAGIC):
         return size
+    if head.startswith(ROSRECORD_MAGIC):
+        raise _old_format(path, head.split(b"\n", 1)[0].decode("ascii", "replace"))
     if len(head) < len(ROSBAG_MAGIC) and ROSBAG_MAGIC.startswith(head):
         raise InputError(
             f"{path}: ends after {size} bytes, inside the bag's first line; no message is readable",
@@ -599,8 +604,30 @@ def _check_file(path: Path) -> int:
         )
     raise FormatError(
         path,
-        f"not a ROS 1 bag: expected {ROSBAG_MAGIC!r} at byte 0, found {head!r}",
+        f"not a ROS 1 bag: expected {ROSBAG_MAGIC!r} at byte 0, found "
+        f"{head[: len(ROSBAG_MAGIC)]!r}",
         hint="check the path",
+    )
+
+
+def _old_format(path: Path, first_line: str) -> FormatError:
+    """The error for a bag of a format before 2.0, named by its first line."""
+    version = first_line.removeprefix(ROSRECORD_MAGIC.decode())
+    if version == "1.2":
+        return FormatError(
+            path,
+            "is a ROS 1 bag in the older format 1.2 ('#ROSRECORD V1.2', written by ROS 0.5 to "
+            "1.0, 2009-2010), which slamcli and rosbags do not read; they read format 2.0 "
+            "('#ROSBAG V2.0')",
+            hint="convert it to format 2.0 in a ROS 1 install, whose rosbag reads 1.2: "
+            "'rosbag fix old.bag new.bag', or, where fix finds no migration rule for an old "
+            "message type, 'rosbag filter old.bag new.bag True'",
+        )
+    return FormatError(
+        path,
+        f"is a ROS bag in the early format {version[:16]!r} (first line {first_line[:32]!r}), "
+        "which slamcli does not read; it reads format 2.0 ('#ROSBAG V2.0')",
+        hint="convert it to format 2.0 with the rosbag tools of a ROS release that reads it",
     )
 
 
