@@ -32,7 +32,12 @@ from slamcli.formats.mcap.reader import (
 from slamcli.formats.mcap.records import ChannelInfo, ChannelStats, RawMessage
 from slamcli.formats.rosbag.health import BagHealth, TopicChannels
 from slamcli.formats.sniff import ROSBAG2_METADATA
-from slamcli.formats.text import format_stamp
+from slamcli.formats.text import (
+    MAX_YAML_BYTES,
+    check_yaml_expansion,
+    format_stamp,
+    read_limited_text,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -81,7 +86,10 @@ def read_layout(path: str | Path) -> Ros2BagLayout:
     from ruamel.yaml.error import YAMLError
 
     try:
-        meta = YAML(typ="safe").load(meta_path.read_text(encoding="utf-8"))
+        text = read_limited_text(meta_path, MAX_YAML_BYTES, "rosbag2 metadata", _METADATA_HINT)
+        meta = YAML(typ="safe").load(text)
+        # rosbags loads the same file again: it is safe to once this passes.
+        check_yaml_expansion(meta_path, meta, hint=_METADATA_HINT)
         info = meta["rosbag2_bagfile_information"]
         storage = str(info["storage_identifier"])
         names = [str(n) for n in info["relative_file_paths"]]
@@ -106,6 +114,12 @@ def read_layout(path: str | Path) -> Ros2BagLayout:
         )
     compression = f"{mode} {fmt}" if mode not in ("", "none") else ""
     return Ros2BagLayout(p, storage, files, compression, distro, version)
+
+
+_METADATA_HINT = (
+    "rosbag2 writes a few kilobytes per topic and file, and no YAML aliases: the file is "
+    "damaged or hostile; 'ros2 bag reindex' on the folder writes it again"
+)
 
 
 def open_ros2_log(
