@@ -37,7 +37,12 @@ import yaml
 from slamcli.atomic import write_text_atomic
 from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats.images import size_problem
-from slamcli.formats.text import yaml_problem
+from slamcli.formats.text import (
+    MAX_YAML_BYTES,
+    check_yaml_expansion,
+    read_limited_text,
+    yaml_problem,
+)
 from slamcli.types import PinholeCamera
 
 log = logging.getLogger(__name__)
@@ -151,11 +156,13 @@ def load_camera_file(path: str | Path) -> CameraFile:
 
     Raises:
         InputError: the file does not exist or cannot be read.
-        FormatError: it is not YAML/JSON, or a key is missing or has a bad value (names the key).
+        FormatError: it is not YAML/JSON, or a key is missing or has a bad value (names the key);
+            it is larger than :data:`~slamcli.formats.text.MAX_YAML_BYTES` or its YAML aliases
+            expand past :data:`~slamcli.formats.text.MAX_YAML_VALUES` values.
     """
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8-sig")
+        text = read_limited_text(p, MAX_YAML_BYTES, "a camera file", _FILE_HINT)
     except FileNotFoundError:
         raise InputError(f"{p}: camera file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -286,6 +293,7 @@ def _parse_mapping(p: Path, text: str) -> dict[str, Any]:
         except yaml.YAMLError as exc:
             problem, line = yaml_problem(exc, text)
             raise FormatError(p, f"not valid YAML ({problem})", line, _FILE_HINT) from None
+        check_yaml_expansion(p, data)
     if not isinstance(data, dict):
         found = "an empty file" if data is None else f"a {type(data).__name__}"
         raise FormatError(p, f"expected a mapping of keys, found {found}", None, _FILE_HINT)

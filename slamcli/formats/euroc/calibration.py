@@ -189,7 +189,7 @@ def read_sensor_yaml(path: str | Path) -> dict[str, Any]:
     except yaml.YAMLError as exc:
         problem, line = yaml_problem(exc, text)
         raise FormatError(p, f"not valid YAML ({problem})", line) from None
-    check_yaml_expansion(p, data, hint=_CAMERA_HINT)
+    check_yaml_expansion(p, data)
     if not isinstance(data, dict):
         found = "an empty file" if data is None else f"a {type(data).__name__}"
         raise FormatError(p, f"expected a mapping of keys, found {found}")

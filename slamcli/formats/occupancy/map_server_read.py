@@ -16,7 +16,12 @@ from numpy.typing import NDArray
 
 from slamcli.errors import FormatError, InputError
 from slamcli.formats.images import decode_image, read_image_file, size_problem
-from slamcli.formats.text import yaml_problem
+from slamcli.formats.text import (
+    MAX_YAML_BYTES,
+    check_yaml_expansion,
+    read_limited_text,
+    yaml_problem,
+)
 from slamcli.types import OccupancyGrid
 
 MAP_MODES = ("trinary", "scale", "raw")
@@ -100,7 +105,7 @@ def _read_map_meta(p: Path) -> _MapYaml:
     if not p.is_file():
         raise InputError(f"{p}: no such file")
     try:
-        text = p.read_bytes().decode("utf-8")
+        text = read_limited_text(p, MAX_YAML_BYTES, "a map YAML file", _KEYS_HINT)
     except OSError as exc:
         raise FormatError(p, f"cannot be read ({exc.strerror})") from exc
     except UnicodeDecodeError as exc:
@@ -111,6 +116,7 @@ def _read_map_meta(p: Path) -> _MapYaml:
     except yaml.YAMLError as exc:
         problem, line = yaml_problem(exc, text)
         raise FormatError(p, f"is not valid YAML ({problem})", line=line) from exc
+    check_yaml_expansion(p, data)
     if not isinstance(data, dict) or not isinstance(node, yaml.MappingNode):
         raise FormatError(p, "expected a mapping of map keys", line=1, hint=_KEYS_HINT)
     lines: dict[str, int] = {}
