@@ -282,3 +282,23 @@ def test_a_sensor_yaml_alias_bomb_is_refused(tmp_path: Path) -> None:
     path.write_text(_alias_bomb() + "T_BS: *l9\n")
     with pytest.raises(FormatError, match=r"sensor\.yaml: holds more than 100000 values"):
         read_sensor_yaml(path)
+
+
+def test_a_landmark_table_over_the_bulk_limit_is_read_line_by_line(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The bulk parse holds a file's text several times over (a 512 MiB line took 7.2 GB);
+    past FAST_PARSE_MAX_BYTES the bounded line-by-line parse reads it, to the same table."""
+    from slamcli.formats.landmarks import tables
+
+    path = tmp_path / "odometry.csv"
+    path.write_text("".join(f"{k * 0.1:.1f} 0.5 0.01\n" for k in range(200)))
+    whole = tables.read_table(path, ("t", "v", "omega"))
+    monkeypatch.setattr(tables, "FAST_PARSE_MAX_BYTES", 1000)
+    by_line = tables.read_table(path, ("t", "v", "omega"))
+    assert (by_line.stamps_ns == whole.stamps_ns).all()
+    assert (by_line.values == whole.values).all()
+    with path.open("a") as fh:
+        fh.write("1" * (MAX_LINE_BYTES + 1) + "\n")
+    with pytest.raises(FormatError, match=r"odometry\.csv:201: the line is longer than"):
+        tables.read_table(path, ("t", "v", "omega"))

@@ -111,6 +111,12 @@ def read_table(
     return table
 
 
+FAST_PARSE_MAX_BYTES = 64 << 20
+"""Largest table parsed in bulk (64 MiB; the MRCLAM tables are 3 MB): the bulk parse holds the
+whole text several times over, so a larger file, or one long damaged line, is read line by
+line, where a line is bounded (:data:`~slamcli.formats.text.MAX_LINE_BYTES`)."""
+
+
 def _read_table_fast(
     path: Path, columns: tuple[str, ...], stamped: bool, delimiter: str | None
 ) -> Table | None:
@@ -120,6 +126,8 @@ def _read_table_fast(
     ``split`` of the whole text can be trusted to line up with the columns.
     """
     try:
+        if path.stat().st_size > FAST_PARSE_MAX_BYTES:
+            return None
         with path.open("r", encoding="utf-8-sig", newline=None) as fh:
             text = fh.read()
     except (OSError, UnicodeDecodeError):
