@@ -1,5 +1,6 @@
 # make demo         - set everything up and run the demo on the bundled sample data
 # make test         - set everything up and run the test suite (it prints the 15 slowest tests)
+# make test-robust  - each accuracy test again on perturbed inputs and seeds 0-4 (~12 min)
 # make constraints  - re-resolve the newest releases pyproject.toml allows into constraints.txt
 # make fuzz         - run FUZZ_CASES seeded damaged inputs through the commands (minutes)
 # make vocabulary   - retrain the shipped ORB vocabulary slamcli/data/orb_vocabulary.npz (~20 min)
@@ -18,6 +19,12 @@ demo: setup
 
 test: setup
 	$(PY) -m pytest -q -n 2 --dist loadfile --durations=15
+
+# Accuracy that does not hinge on last bits (docs/development.md): tests/robust is collected
+# only when named. Tests of one seed share its rendering, so they go to one process (loadgroup).
+.PHONY: test-robust
+test-robust: setup
+	$(PY) -m pytest -q -n 2 --dist loadgroup --durations=10 tests/robust
 
 setup: syslibs $(STAMP) bytecode kernels
 
