@@ -3,7 +3,8 @@
 The pose is predicted by a constant-velocity model, the last frame's points (map points and,
 RGB-D, its keypoints lifted with depth) are searched by projection, and the pose is refined
 with a robust (Cauchy) loss; failing that, the reference keyframe's points are matched by
-appearance and the pose found by LO-RANSAC PnP (pycolmap); failing that, the frame is
+appearance and the pose found by LO-RANSAC PnP (pycolmap). A monocular frame takes the two in
+the other order (see :meth:`Tracking.locate`). Failing both, the frame is
 relocalised against the keyframes of its map by place recognition and PnP. The local map (the
 points of the keyframes that share points with the frame, and their best neighbours) is then
 searched by projection and the pose refined again. A keyframe is wanted as ORB-SLAM decides:
@@ -80,9 +81,18 @@ class Tracking(Part):
         pose = None
         state = "tracked"
         with self.stats.timed("track"):
-            if self.last is not None and self.velocity is not None and self.lost_run == 0:
+            if self.rig.mono and self.lost_run == 0:
+                # Monocular: appearance first. Points searched by projection from a predicted
+                # pose are found where the prediction puts them; on a repeated texture a
+                # look-alike sits there too, and a pose whose step is short (a camera sliding
+                # along a flat wall looks much like one turning) is confirmed by it, frame
+                # after frame, until the map's scale has collapsed. Without depth nothing
+                # checks that, so the prediction serves only when appearance fails.
+                pose = self._track_reference(cur)
+            moving = self.last is not None and self.velocity is not None
+            if pose is None and moving and self.lost_run == 0:
                 pose = self._track_motion(cur)
-            if pose is None and self.lost_run == 0:
+            if pose is None and self.lost_run == 0 and not self.rig.mono:
                 pose = self._track_reference(cur)
         if pose is None:
             with self.stats.timed("relocalise"):
@@ -126,8 +136,8 @@ class Tracking(Part):
         cur.cam_from_world = kf.cam_from_world.copy()
 
     def _track_motion(self, cur: Frame) -> F64 | None:
-        """Constant-velocity prediction; the last frame's points are found by projection from
-        it, and the pose refined on them (monocular: from the pose they agree on)."""
+        """Constant-velocity prediction, refined on the last frame's points found by
+        projection."""
         assert self.last is not None and self.velocity is not None
         assert self.last.cam_from_world is not None and self._last_points is not None
         predicted = self.velocity @ self.last.cam_from_world
@@ -151,23 +161,6 @@ class Tracking(Part):
             cur.depth[pairs[:, 1]],
             rounds=2,
         )
-        if self.rig.mono:
-            # Without depth, a camera sliding along a flat wall and one turning in place look
-            # nearly alike, and the refinement keeps the inliers that agree with the
-            # prediction: the pose keeps the predicted step in that direction, the velocity
-            # learns it, and a step once too short shrinks frame after frame, and the map's
-            # scale with it. The pose the matches agree on, found without the prediction, is
-            # taken instead when nearly as many agree on it.
-            found = absolute_pose(
-                self.rig.camera,
-                cur.keypoints[pairs[:, 1]],
-                world[pairs[:, 0]],
-                threshold_px=self.config.pnp_threshold_px,
-                min_inliers=10,
-                seed=self.config.seed,
-            )
-            if found is not None and (est is None or found.num_inliers >= 0.8 * est.num_inliers):
-                est = found
         if est is None or est.num_inliers < 10:
             self.stats.counts["motion_model_failed"] += 1
             return None
