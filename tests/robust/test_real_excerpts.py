@@ -47,6 +47,13 @@ KITTI = ("stereo", "kitti_excerpt_1")
 EUROC = ("stereo", "euroc_V1_01_micro")
 MRCLAM = ("landmarks", "MRCLAM_Dataset6")
 
+DENSE_TUM_ROBUST_ATE_M = 0.02
+"""The dense run's ATE on fr1/rpy, widened from the main test's 0.016 m for every variant: that
+was set for the unperturbed run (0.0151 m), and the colour images' last bits move the visual
+front end's keypoints and with them the error. One grey level of noise gave 0.0176, 0.0175,
+0.0181 and 0.0167 m (noise seeds 0-3), every tenth frame left out 0.0170 m, the first 0.0155 m,
+each with all 150 frames placed and nothing lost; 0.02 m holds that spread with 10 % to spare."""
+
 
 def _ate(outcome: RunOutcome) -> float:
     return float(outcome.metrics["evaluation"]["ate"]["rmse"])
@@ -75,7 +82,8 @@ def test_tum_visual_rgbd(
 def test_tum_dense(variant: str, shared_artefact: Any, tmp_path: Path, figures: Figures) -> None:
     folder = _copy(shared_artefact, "tum", tum_variant, shared_path(*TUM), variant)
     outcome = run_pipeline(folder, "dense", tmp_path / "run")
-    figures.expect("ATE (m)", _ate(outcome), "<=", DENSE_TUM_ATE_M)
+    widened = f"widened from {DENSE_TUM_ATE_M}"
+    figures.expect("ATE (m)", _ate(outcome), "<=", DENSE_TUM_ROBUST_ATE_M, widened)
     figures.verify()
 
 
