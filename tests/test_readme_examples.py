@@ -9,8 +9,10 @@ resolve as in a fresh clone, and later examples find the files earlier ones wrot
 (``runs/demo`` from docs/demo.md, ``runs/room`` from docs/dense.md, …).
 
 An example passes when it exits with 0 (1 when the page shows it printing an ``error:``, 3 when
-its line says ``# exit code 3``), prints no traceback, and the files it lists under ``Written``
-exist. Output figures are not compared.
+its line says ``# exit code 3``), prints no traceback, the files it lists under ``Written``
+exist, and what it prints is what the page shows (:func:`output_problem`): line for line and
+word for word, with paths, times, byte sizes and hashes free to differ, and figures within a
+tolerance (:data:`REL_TOL`), so the pages cannot drift from what the commands print.
 
 ``slamcli`` lines run in this process through typer's ``CliRunner`` (``slamcli … > FILE`` writes
 the captured stdout to FILE), so the libraries are imported once rather than once per example;
@@ -65,6 +67,14 @@ ORDER = (
     "docs/merge.md",  # reads runs/world3, runs/world3_r2
     "docs/python-api.md",
 )
+
+# The checkout's path as the pages show it (the demo prints the sample data's absolute path).
+PAGES_CHECKOUT = "/work/main"
+# Figures (numbers with a decimal point: accuracy, lengths, rates) may differ by this fraction of
+# the page's value, or by one unit of its last digit: floating-point rounding differs across CPUs
+# and library builds, and a tracker's choices follow it (DESIGN, section 6). Whole numbers (counts,
+# cells, frames) are compared exactly; wall-clock times, byte sizes and hashes not at all.
+REL_TOL = 0.25
 
 # Each example may take a while (a dense run over the 150-frame TUM excerpt takes ~30 s), but
 # none should take minutes.
@@ -238,6 +248,51 @@ def test_readme_links_every_docs_page() -> None:
     assert not unlinked, f"README.md does not link {unlinked}"
 
 
+def test_output_comparison() -> None:
+    """Wording, layout and counts are held to the page; times, sizes, paths as :func:`_as_given`
+    writes them and small differences in figures are not."""
+    shown = [
+        "Plan",
+        " map                runs/plan/map.yaml",
+        " grid cost          4.414 m (81 cells, 21 expanded, jps)",
+        " plan time          76 ms",
+        " time    1.92 s",
+        "Written",
+        "  1531 bytes  runs/plan/path.csv",
+        "hint: known formats: landmarks, mcap, tum",
+    ]
+    printed = [
+        "",
+        "Plan",
+        " map                runs/plan/map.yaml   ",
+        " grid cost          4.52 m (81 cells, 21 expanded, jps)",
+        " plan time          312 ms",
+        " time    0.5 s",
+        "Written",
+        " 11531 bytes  runs/plan/path.csv",
+        "hint: known formats: landmarks, mcap, tum",
+    ]
+    assert output_problem(shown, "\n".join(printed)) is None
+    for at, changed in (
+        (3, " grid cost          9.9 m (81 cells, 21 expanded, jps)"),
+        (3, " grid cost          4.414 m (82 cells, 21 expanded, jps)"),
+        (8, "hint: known formats: carmen, landmarks, mcap, tum"),
+        (6, "Written files"),
+    ):
+        drifted = [*printed[:at], changed, *printed[at + 1 :]]
+        assert output_problem(shown, "\n".join(drifted)) is not None, changed
+    assert output_problem(shown, "\n".join(printed[:-1])) is not None
+    assert output_problem(["error: a (b; …)"], "error: a (b; c; d)") is None
+    assert output_problem(["error: a (c; …)"], "error: a (b; c; d)") is not None
+    settings = "[ekf]\nx = 1\nsmooth = true\ny = 2"
+    assert output_problem(["[ekf]", "…", "smooth = true", "…"], settings) is None
+    assert output_problem(["[ekf]", "…", "smooth = true"], settings) is not None
+    out = Path("/tmp/shared-runs/plan-0123456789ab/out")
+    cropped = f" map                {str(out)[:20]}…"
+    given = _as_given(cropped, _paths_as_given(["plan", "--out", "runs/plan"], REPO, out))
+    assert output_problem([shown[1]], given) is None
+
+
 def _argv(command: str) -> tuple[list[str], str | None]:
     """The arguments of a ``slamcli`` line (comments stripped) and the file a ``>`` sends
     stdout to."""
@@ -259,6 +314,163 @@ class _Outcome:
     stdout: str
     stderr: str
     traceback: str = ""
+    output: str = ""  # stdout and stderr as a terminal shows them, paths as the page gives them
+
+
+_WALL_CLOCK = re.compile(r"^\s*(?:plan )?time\s+\d")
+_NUMBER = re.compile(r"(?<![\w.])[-+]?\d+(?:\.\d+)?(?:[eE][-+]?\d+)?(?![\w.]*\d)")
+_FREE_UNIT = re.compile(r"\s*(?:ms\b|bytes\b|[KMG]iB\b)")
+_HASH = re.compile(r"\b(?=[0-9]*[a-f])[0-9a-f]{12,}\b")
+_BOX_RUN = re.compile(r"([━─═])\1+")
+_SPACES = re.compile(r"\s+")
+
+
+def _normalised(line: str) -> str:
+    """A line with hashes masked and runs of spaces and of table rules shortened: column
+    widths follow the widths of the figures in them."""
+    line = _HASH.sub("<hash>", line.rstrip())
+    return _SPACES.sub(" ", _BOX_RUN.sub(r"\1", line))
+
+
+def _template(line: str) -> tuple[str, list[tuple[str, bool]]]:
+    """The line with its numbers replaced by ``#``, and each number with whether it is free
+    (a time in ms, a byte size, anything on a wall-clock ``time`` line)."""
+    clock = bool(_WALL_CLOCK.match(line))
+    numbers = []
+    for m in _NUMBER.finditer(line):
+        numbers.append((m.group(), clock or bool(_FREE_UNIT.match(line, m.end()))))
+    return _NUMBER.sub("#", line), numbers
+
+
+def _numbers_agree(shown: str, printed: str) -> bool:
+    if "." not in shown and "." not in printed:
+        return shown == printed
+    a, b = float(shown), float(printed)
+    decimals = len(shown.partition(".")[2])
+    return abs(a - b) <= max(REL_TOL * abs(a), 10.0**-decimals)
+
+
+def _line_problem(shown: str, printed: str) -> str | None:
+    """Why the printed line is not the shown one, or None."""
+    if "…" in shown:
+        # The page elides part of a long line: the parts it shows are printed, in order.
+        parts = [re.escape(part) for part in shown.split("…")]
+        return None if re.fullmatch(".*".join(parts), printed) else "differs around the '…'"
+    if printed.endswith("…"):
+        # A table cell cropped to the terminal (see _as_given).
+        return None if shown.startswith(printed[:-1]) else "differs before the cropped end"
+    shown_template, shown_numbers = _template(shown)
+    printed_template, printed_numbers = _template(printed)
+    if shown_template != printed_template:
+        return "wording or layout differs"
+    for (a, free), (b, _) in zip(shown_numbers, printed_numbers, strict=True):
+        if not free and not _numbers_agree(a, b):
+            return f"{a} shown, {b} printed"
+    return None
+
+
+def _elided_problem(expected: list[str], actual: list[str]) -> str | None:
+    """Why ``actual`` does not match ``expected``, whose ``…`` lines stand for any number of
+    lines: the parts between them are printed in order, the first at the start, the last at
+    the end."""
+    parts: list[list[str]] = [[]]
+    for line in expected:
+        if line == "…":
+            parts.append([])
+        else:
+            parts[-1].append(line)
+
+    def matches(part: list[str], at: int) -> bool:
+        block = actual[at : at + len(part)]
+        return len(block) == len(part) and all(
+            _line_problem(a, b) is None for a, b in zip(part, block, strict=True)
+        )
+
+    first, *middle, last = parts
+    if not matches(first, 0):
+        return f"the lines before the first '…' differ: {first}"
+    at = len(first)
+    for part in middle:
+        found = next((k for k in range(at, len(actual)) if matches(part, k)), None)
+        if found is None:
+            return f"not printed after line {at}: {part}"
+        at = found + len(part)
+    if len(actual) - len(last) < at or not matches(last, len(actual) - len(last)):
+        return f"the lines after the last '…' differ: {last}"
+    return None
+
+
+def output_problem(shown: list[str], printed: str) -> str | None:
+    """What differs between the output a page shows and the one a command printed, or None.
+
+    Both are compared line for line after :func:`_normalised`; numbers as :data:`REL_TOL` says.
+    Blank lines around the output do not count. A ``…`` in a shown line stands for any text,
+    a line that is only ``…`` for any number of lines.
+    """
+    expected = "\n".join(_normalised(line) for line in shown).strip("\n").split("\n")
+    actual = "\n".join(_normalised(line) for line in printed.splitlines()).strip("\n").split("\n")
+    if "…" in expected:
+        why = _elided_problem(expected, actual)
+        return None if why is None else f"printed output differs from the page: {why}"
+    problems = []
+    for k in range(max(len(expected), len(actual))):
+        a = expected[k] if k < len(expected) else "<nothing>"
+        b = actual[k] if k < len(actual) else "<nothing>"
+        why = _line_problem(a, b) if k < min(len(expected), len(actual)) else "missing line"
+        if why:
+            problems.append(f"  line {k + 1}: {why}\n    page:    {a}\n    printed: {b}")
+    if not problems:
+        return None
+    return "printed output differs from the page:\n" + "\n".join(problems[:12])
+
+
+def _as_given(text: str, replacements: dict[str, str]) -> str:
+    """``text`` with each absolute path of ``replacements`` written as the page gives it,
+    longest first.
+
+    Rich crops a table cell too wide for the terminal with ``…``: a shared run's long
+    temporary ``--out`` may be cut inside. A line that ends with the start of such a path and
+    ``…`` gets the page's path and ``…``, and is compared up to there.
+    """
+    longest_first = sorted(replacements, key=len, reverse=True)
+    for absolute in longest_first:
+        text = text.replace(absolute, replacements[absolute])
+    lines = []
+    for line in text.splitlines():
+        head = line.rstrip()
+        if head.endswith("…"):
+            for absolute in longest_first:
+                start = _cut_start(head[:-1], absolute)
+                if start is not None:
+                    head = head[:start] + replacements[absolute] + "…"
+                    break
+        lines.append(head)
+    return "\n".join(lines)
+
+
+def _cut_start(text: str, path: str) -> int | None:
+    """Where ``text`` ends with a cut-off start of ``path`` (at least 8 characters, after a
+    space), or None."""
+    for k in range(len(path), 7, -1):
+        if text.endswith(path[:k]) and text[: len(text) - k].endswith(" "):
+            return len(text) - k
+    return None
+
+
+def _paths_as_given(args: list[str], work: Path, out: Path | None = None) -> dict[str, str]:
+    """How paths a command prints map back to the page's words: the repository and the scratch
+    checkout to :data:`PAGES_CHECKOUT`; for a shared run (run elsewhere, on absolute paths),
+    each argument that names a path, and the run's own ``--out``, to the example's argument."""
+    replacements = {str(REPO): PAGES_CHECKOUT, str(work): PAGES_CHECKOUT}
+    if out is not None:
+        given = out_argument(args)
+        assert given is not None
+        replacements[str(out)] = given.rstrip("/")
+        for token in args:
+            path = work / token
+            if not token.startswith("-") and path.exists():
+                replacements[str(path.resolve())] = token
+    return replacements
 
 
 @contextlib.contextmanager
@@ -295,7 +507,8 @@ def _run_slamcli(
         run = shared_run(*args, cwd=work, suffix=Path(out).suffix)
         if run.out.exists():
             copy_out(run, work / out)
-        return _Outcome(run.exit_code, run.stdout, run.stderr, run.traceback)
+        output = _as_given(run.output, _paths_as_given(args, work, run.out))
+        return _Outcome(run.exit_code, run.stdout, run.stderr, run.traceback, output)
     capfd.readouterr()
     with _inside(work):
         result = CliRunner().invoke(app, args, env=ENV)
@@ -306,7 +519,8 @@ def _run_slamcli(
     if result.exception is not None and not isinstance(result.exception, SystemExit):
         assert result.exc_info is not None
         trace = "".join(traceback.format_exception(*result.exc_info))
-    return _Outcome(result.exit_code, result.stdout, result.stderr + helpers.err, trace)
+    output = _as_given(result.output + helpers.err, _paths_as_given(args, work))
+    return _Outcome(result.exit_code, result.stdout, result.stderr + helpers.err, trace, output)
 
 
 def _run_process(example: Example, work: Path) -> _Outcome:
@@ -319,7 +533,8 @@ def _run_process(example: Example, work: Path) -> _Outcome:
         proc = subprocess.run([sys.executable, script.name], check=False, **kwargs)
     else:
         proc = subprocess.run(["bash", "-c", example.text], check=False, **kwargs)
-    return _Outcome(proc.returncode, proc.stdout, proc.stderr)
+    output = _as_given(proc.stdout + proc.stderr, _paths_as_given([], work))
+    return _Outcome(proc.returncode, proc.stdout, proc.stderr, output=output)
 
 
 def _check(
@@ -343,6 +558,9 @@ def _check(
     missing = [p for p in example.written() if not (work / p).exists()]
     if missing:
         return f"{example.label()}: listed as written but absent: {missing}{tail}"
+    differs = output_problem(example.output, run.output) if example.output else None
+    if differs:
+        return f"{example.label()}: {differs}"
     return None
 
 
