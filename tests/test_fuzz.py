@@ -3,6 +3,8 @@
 Every case must exit 0, 1 or 3, print no traceback and at most one error line, leave no
 half-written output, and stay under fuzzing.WALL_LIMIT_S and fuzzing.RSS_LIMIT_MB (with the
 virtual memory capped at fuzzing.AS_LIMIT_BYTES). `make fuzz` runs the same checks on 10,000 cases.
+Besides the seeded draw, every format meets its own hostile mutations here: bag record and chunk
+lengths, bz2 and lz4 bombs, YAML alias bombs and lines over the 1 MiB limit.
 """
 
 from __future__ import annotations
@@ -23,14 +25,24 @@ from typer.testing import CliRunner
 from slamcli.cli.app import app
 
 CI_SEED = 20261124
-CI_CASES = 40
+CI_CASES = 60
 
 
 @pytest.fixture(scope="module")
 def corpus(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, list[fuzzing.Target]]:
     shared_path("mcap", "nav2_turtlebot.mcap")
+    shared_path("lidar", "rosbag1", "ccny_scan_matcher_demo.bag")
+    shared_path("lidar", "carmen", "intel-corrected.log.gz")
+    shared_path("stereo", "kitti_excerpt_1")
+    shared_path("stereo", "euroc_V1_01_micro")
     root = tmp_path_factory.mktemp("fuzz-corpus")
     return root, fuzzing.build_corpus(root)
+
+
+def _case(
+    case_id: str, target: str, file: str, mutation: str, *argv: str, subprocess: bool = True
+) -> fuzzing.Case:
+    return fuzzing.Case(case_id, target, file, mutation, list(argv), subprocess=subprocess)
 
 
 def _report(outcomes: list[fuzzing.Outcome]) -> str:
@@ -42,18 +54,25 @@ def test_valid_inputs_pass_the_checks_under_the_limits(
 ) -> None:
     """The heaviest commands on undamaged inputs: the limits leave room for real work."""
     root, _ = corpus
+    out = ("--out", "{out}")
     cases = [
         fuzzing.Case(f"valid-{i}", target, file, "untouched", list(argv), subprocess=True)
         for i, (target, file, argv) in enumerate(
             [
                 ("mcap-zstd", "log.mcap", fuzzing.targets()[0].commands[2]),
                 ("tum", "rgb.txt", ("info", "{in}", "--deep")),
-                ("landmarks", "odometry.csv", ("run", "ekf", "{in}", "--out", "{out}")),
+                ("landmarks", "odometry.csv", ("run", "ekf", "{in}", *out)),
+                ("rosbag1-bz2", "scans.bag", ("run", "lidar", "{in}/scans.bag", *out)),
+                ("rosbag2-sqlite3", "bag/bag_0.db3", fuzzing._ROS2_BAG_COMMANDS[2]),
+                ("carmen", "laser.log", ("run", "lidar", "{in}/laser.log", *out)),
+                ("kitti", "calib.txt", fuzzing._STEREO_COMMANDS[2]),
+                ("euroc", "mav0/cam0/data.csv", fuzzing._STEREO_COMMANDS[2]),
             ]
         )
     ]
     outcomes = fuzzing.run_cases(cases, root, 0, workers=2, keep=tmp_path)
-    assert [o.exit_code for o in outcomes] == [0, 0, 0], _report(outcomes)
+    outcomes.sort(key=lambda o: int(o.case.case_id.split("-")[1]))
+    assert [o.exit_code for o in outcomes] == [0] * len(cases), _report(outcomes)
     assert not any(o.problems for o in outcomes), _report(outcomes)
     assert all(o.peak_rss_mb > 20 for o in outcomes)
 
@@ -71,25 +90,81 @@ def test_seeded_damaged_inputs_fail_cleanly(
 
 
 FOUND_CASES = [
-    # Found by `make fuzz` (seed 0 unless named) and fixed in the readers since.
-    pytest.param(2, 119, id="png-idat-length-huge"),
-    pytest.param(0, 1331, id="tum-list-stamp-huge-integer"),
-    pytest.param(0, 1365, id="euroc-stamp-1e308"),
-    pytest.param(0, 2683, id="landmark-odometry-1e308"),
-    pytest.param(0, 9682, id="g2o-id-huge-integer"),
-    pytest.param(0, 47, id="mcap-repeated-message-index"),
-    pytest.param(0, 1702, id="tum-list-nul-in-image-path"),
-]
+    # Found by `make fuzz` and fixed in the readers since. Each is pinned by its target, file,
+    # mutation and command (a corpus with more targets draws other cases from the same seed and
+    # index); its seed and case id still give the same damage.
+    pytest.param(2, _case("s2-000119", "tum", "depth/0.png", "png_inflate_chunk", "info", "{in}"),
+                 id="png-idat-length-huge"),
+    pytest.param(0, _case("s0-001331", "tum", "rgb.txt", "text_odd_number", "info", "{in}",
+                          "--deep"), id="tum-list-stamp-huge-integer"),
+    pytest.param(0, _case("s0-001365", "trajectory-euroc", "est.txt", "text_odd_number", "eval",
+                          "{in}/gt.csv", "{in}/est.txt", "--format", "euroc"),
+                 id="euroc-stamp-1e308"),
+    pytest.param(0, _case("s0-002683", "landmarks", "odometry.csv", "text_odd_number", "run",
+                          "ekf", "{in}", "--out", "{out}"), id="landmark-odometry-1e308"),
+    pytest.param(0, _case("s0-009682", "g2o", "graph.g2o", "text_odd_number", "info",
+                          "{in}/graph.g2o"), id="g2o-id-huge-integer"),
+    pytest.param(0, _case("s0-000047", "mcap-nav2", "log.mcap", "mcap_repeat_record", "info",
+                          "{in}/log.mcap"), id="mcap-repeated-message-index"),
+    pytest.param(0, _case("s0-001702", "tum", "depth.txt", "overwrite_run", "info", "{in}"),
+                 id="tum-list-nul-in-image-path"),
+    # Found once the corpus's YAML files met alias bombs and its text files 8 MiB lines.
+    pytest.param(3, _case("s3-000132", "map", "map.yaml", "yaml_alias_bomb", "map", "show",
+                          "{in}/map.yaml"), id="map-yaml-alias-bomb"),
+    pytest.param(3, _case("s3-000038", "tum", "camera.yaml", "text_long_line", "info", "{in}",
+                          "--deep"), id="camera-yaml-8-mib-line"),
+]  # fmt: skip
 
 
-@pytest.mark.parametrize(("seed", "index"), FOUND_CASES)
+@pytest.mark.parametrize(("seed", "case"), FOUND_CASES)
 def test_cases_found_by_make_fuzz(
-    corpus: tuple[Path, list[fuzzing.Target]], tmp_path: Path, seed: int, index: int
+    corpus: tuple[Path, list[fuzzing.Target]], tmp_path: Path, seed: int, case: fuzzing.Case
 ) -> None:
-    root, all_targets = corpus
-    case = fuzzing.make_case(seed, index, all_targets, 1)
-    (outcome,) = fuzzing.run_cases([case], root, seed, workers=1, keep=tmp_path)
+    root, _ = corpus
+    (outcome,) = fuzzing.run_cases([dataclasses.replace(case)], root, seed, 1, keep=tmp_path)
     assert not outcome.problems, _report([outcome])
+
+
+_SCANS = "{in}/scans.bag"
+HOSTILE_CASES = [
+    # ROS 1 bags: record lengths, a chunk's declared size, bz2 and lz4 bombs (via the index and
+    # by walking the records).
+    _case("h-01", "rosbag1", "scans.bag", "ros1_inflate_length", "info", _SCANS, "--deep"),
+    _case("h-02", "rosbag1-bz2", "scans.bag", "ros1_chunk_size", "run", "lidar", _SCANS,
+          "--out", "{out}"),
+    _case("h-03", "rosbag1-bz2", "scans.bag", "ros1_bz2_bomb", "info", _SCANS, "--deep"),
+    _case("h-04", "rosbag1", "scans.bag", "ros1_bz2_bomb", "run", "lidar", _SCANS, "--out",
+          "{out}"),
+    _case("h-05", "rosbag1-lz4", "scans.bag", "ros1_lz4_bomb", "info", _SCANS, "--deep"),
+    _case("h-06", "rosbag1-bz2", "scans.bag", "ros1_lz4_bomb", "run", "lidar", _SCANS, "--out",
+          "{out}"),
+    # ROS 2 bag folders: a metadata.yaml full of aliases.
+    _case("h-07", "rosbag2-sqlite3", "bag/metadata.yaml", "yaml_alias_bomb", "info", "{in}/bag"),
+    _case("h-08", "rosbag2-mcap", "bag/metadata.yaml", "yaml_alias_bomb", "run", "odometry",
+          "{in}/bag", "--out", "{out}"),
+    # CARMEN logs, KITTI and EuRoC folders: lines over the limit, alias bombs, huge images.
+    _case("h-09", "carmen", "laser.log", "text_long_line", "run", "lidar", "{in}/laser.log",
+          "--out", "{out}"),
+    _case("h-10", "carmen-gz", "laser.log.gz", "truncate", "run", "lidar", "{in}/laser.log.gz",
+          "--out", "{out}"),
+    _case("h-11", "kitti", "calib.txt", "text_long_line", "info", "{in}"),
+    _case("h-12", "kitti", "image_l/000000.png", "png_huge_header", "run", "visual", "{in}",
+          "--max-frames", "3", "--out", "{out}"),
+    _case("h-13", "euroc", "mav0/cam0/data.csv", "text_long_line", "info", "{in}"),
+    _case("h-14", "euroc", "mav0/cam1/sensor.yaml", "yaml_alias_bomb", "run", "visual", "{in}",
+          "--max-frames", "3", "--out", "{out}"),
+]  # fmt: skip
+
+
+def test_hostile_mutations_of_every_format_fail_cleanly(
+    corpus: tuple[Path, list[fuzzing.Target]], tmp_path: Path
+) -> None:
+    root, _ = corpus
+    cases = [dataclasses.replace(c) for c in HOSTILE_CASES]
+    outcomes = fuzzing.run_cases(cases, root, CI_SEED, workers=2, keep=tmp_path)
+    assert len(outcomes) == len(HOSTILE_CASES)
+    assert not any(o.problems for o in outcomes), _report(outcomes)
+    assert {o.exit_code for o in outcomes} <= {1, 3}, _report(outcomes)
 
 
 def test_ekf_that_diverges_on_absurd_odometry_fails_with_a_message(
@@ -119,7 +194,7 @@ def test_cases_are_reproducible_from_seed_and_index() -> None:
     assert first == again
     assert first != other
     data = bytes(range(256)) * 8
-    for mutator in (*fuzzing.MCAP, *fuzzing.PNG, *fuzzing.TEXT):
+    for mutator in (*fuzzing.MCAP, *fuzzing.PNG, *fuzzing.ROS1, *fuzzing.YAML):
         assert mutator(data, random.Random(3)) == mutator(data, random.Random(3))
 
 
@@ -139,6 +214,29 @@ def test_mcap_mutations_find_records(corpus: tuple[Path, list[fuzzing.Target]]) 
     assert {0x01, 0x06, 0x07, 0x0F} <= opcodes  # header, chunk, message index, data end
     out, what = fuzzing.mcap_inflate_chunk(data, random.Random(1))
     assert len(out) == len(data) and out != data and "chunk" in what
+
+
+def test_ros1_mutations_find_records_and_chunks(
+    corpus: tuple[Path, list[fuzzing.Target]],
+) -> None:
+    root, _ = corpus
+    data = (root / "rosbag1-bz2" / "scans.bag").read_bytes()
+    records = fuzzing._ros1_records(data)
+    ops = {r[3][b"op"] for r in records}
+    assert {b"\x03", b"\x05", b"\x04", b"\x06", b"\x07"} <= ops  # header, chunk, indexes
+    assert sum(r[0] + 8 + r[1] + r[2] for r in records[-1:]) == len(data)
+    out, what = fuzzing.ros1_bz2_bomb(data, random.Random(0))
+    assert "as bz2" in what
+    if "padded" in what:
+        assert len(out) == len(data)  # the index still points at every chunk
+    out, what = fuzzing.ros1_chunk_size(data, random.Random(1))
+    assert out != data and "size" in what
+
+
+def test_yaml_alias_bomb_keeps_a_directive_first() -> None:
+    data = b"%YAML:1.0\nT_BS:\n  rows: 4\nrate_hz: 200\n"
+    out, what = fuzzing.yaml_alias_bomb(data, random.Random(2))
+    assert out.startswith(b"%YAML:1.0\nlaughs:\n") and "made *l" in what
 
 
 def test_checks_catch_half_written_outputs(tmp_path: Path) -> None:
