@@ -37,7 +37,7 @@ bytecode: $(STAMP)
 	@$(PY) -m compileall -q slamcli
 
 # numba compiles the path search, the car-like planner, the matchers and the renderer on their
-# first call (about a minute in all, on 2 cores) and caches the machine code beside each module.
+# first call (about 40 s in all, on 2 cores) and caches the machine code beside each module.
 # Compiled here once per install, and again when a kernel module changes, so neither the demo,
 # the tests nor the timings they print pay for it.
 KERNELS := $(VENV)/.kernels

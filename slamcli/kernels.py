@@ -48,8 +48,8 @@ class KernelGroup:
         name: short name (``"search"``, ``"car"``, ...).
         title: what the kernels do, as a message names them ("path search").
         modules: the modules defining the group's kernels.
-        seconds: about how long compiling the group takes (measured on a 2-core laptop-class
-            machine, with nothing cached), for the message that announces it.
+        seconds: about how long compiling the group takes (measured with nothing cached, on
+            2 cores), for the message that announces it.
         warm: runs the group's code on tiny inputs, so every kernel is compiled or loaded.
     """
 
@@ -174,13 +174,13 @@ GROUPS: tuple[KernelGroup, ...] = (
         "matching",
         "feature matching",
         ("slamcli.vision._matching_kernels",),
-        8.0,
+        6.0,
         _warm_matching,
     ),
     KernelGroup(
-        "stereo", "stereo matching", ("slamcli.vision._stereo_kernels",), 8.0, _warm_stereo
+        "stereo", "stereo matching", ("slamcli.vision._stereo_kernels",), 4.0, _warm_stereo
     ),
-    KernelGroup("render", "room rendering", ("slamcli.synth._render_kernels",), 4.0, _warm_render),
+    KernelGroup("render", "room rendering", ("slamcli.synth._render_kernels",), 2.0, _warm_render),
 )
 """Every kernel module, in groups; a new module with ``cache=True`` kernels joins one."""
 

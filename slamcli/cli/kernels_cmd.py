@@ -1,4 +1,4 @@
-"""``slamcli kernels``: compile the compiled kernels now instead of on their first use."""
+"""``slamcli kernels``: compile the numba kernels now instead of on their first use."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ from slamcli.cli.common import boundary
 HELP = """Compile every compiled kernel for this machine now, or load it from numba's cache.
 
 The path search, the car-like planner, feature and stereo matching and the room renderer are \
-compiled on their first use after an install (about a minute in all) and cached; this does it \
-ahead, e.g. when building a container image. 'make setup' runs it once per install. Prints \
-the seconds each group took.
+compiled on their first use after an install (about 40 s in all on 2 cores) and cached; this \
+does it ahead, e.g. when building a container image. 'make setup' runs it once per install. \
+Prints the seconds each group took.
 
 Example: [bold]slamcli kernels[/]
 """
