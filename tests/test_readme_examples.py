@@ -474,6 +474,24 @@ def _paths_as_given(args: list[str], work: Path, out: Path | None = None) -> dic
 
 
 @contextlib.contextmanager
+def _console_width(columns: int) -> Iterator[None]:
+    """The CLI's consoles ``columns`` wide while an example runs in this process. They take
+    their width from the terminal when they are made, and a test process may have none (CI
+    has no terminal at all: 80 columns), where the pages show a terminal's ``ENV`` width."""
+    from slamcli.cli import render
+
+    consoles = (render.out, render.err)
+    saved = [c.width for c in consoles]
+    for c in consoles:
+        c.width = columns
+    try:
+        yield
+    finally:
+        for c, width in zip(consoles, saved, strict=True):
+            c.width = width
+
+
+@contextlib.contextmanager
 def _inside(work: Path) -> Iterator[None]:
     """Run with ``work`` as the working directory, and a Python traceback after TIMEOUT_S."""
     before = Path.cwd()
@@ -510,7 +528,7 @@ def _run_slamcli(
         output = _as_given(run.output, _paths_as_given(args, work, run.out))
         return _Outcome(run.exit_code, run.stdout, run.stderr, run.traceback, output)
     capfd.readouterr()
-    with _inside(work):
+    with _inside(work), _console_width(int(ENV["COLUMNS"])):
         result = CliRunner().invoke(app, args, env=ENV)
     helpers = capfd.readouterr()  # what helper processes wrote to the inherited descriptors
     if target is not None:
