@@ -312,6 +312,8 @@ def test_every_figure_a_run_writes_is_a_known_gate_metric(
     assert "ate.rmse" in names
     # Peak memory, as the operating system counts it (this process has loaded numpy at least).
     assert names["memory.peak_rss_mb"] > 50
+    # Every run counts the reasons it doubts its result; these short clean runs have none.
+    assert names["doubts"] == 0
     unknown = [n for n in names if not known_metric(pipeline, n)]
     assert unknown == []
     for typo in ("ate.rmsee", "fram.lost", "frames.lots", "ms_per_frame.a.b"):
