@@ -172,9 +172,7 @@ class LoopClosing(Part):
             )
         if deg > cfg.loop_max_rotation_deg:
             return f"it turns the map by {deg:.1f} deg (at most {cfg.loop_max_rotation_deg:g})"
-        between = [
-            k for k in self.map.live(kf.map_id) if cand.id <= k.id <= kf.id and k.id != kf.id
-        ] + [kf]
+        between = [k for k in self.map.live(kf.map_id) if cand.id <= k.id < kf.id] + [kf]
         centres = np.stack([k.center for k in between])
         path = float(np.linalg.norm(np.diff(centres, axis=0), axis=1).sum())
         if m > cfg.loop_max_drift * path:
