@@ -2,7 +2,8 @@
 
 A keyframe takes over the points its frame matched, adds new ones (from depth for RGB-D, by
 triangulation with its covisible keyframes with parallax and reprojection checks for
-monocular), fuses duplicate points with its neighbours, culls points seldom found where
+monocular, once a local bundle adjustment has set the keyframe's pose among its
+neighbours), fuses duplicate points with its neighbours, culls points seldom found where
 predicted, starts a local bundle adjustment of its neighbourhood (pycolmap/Ceres, the
 keyframes that also see its points held fixed) and culls neighbours whose points three
 others see (ORB-SLAM's LocalMapping).
@@ -61,6 +62,14 @@ class LocalMapping(Part):
         self.map.update_geometry(kf.point_ids[kf.point_ids >= 0])
         if not self.rig.mono:
             self._points_from_depth(kf)
+        elif len(self.map.live(kf.map_id)) > 2:
+            # A monocular keyframe's pose is adjusted with its neighbours before it makes new
+            # points. Facing a wall, one frame's pose trades translation for rotation almost
+            # freely (a short step and a turn look alike): tracked alone, it can be off by
+            # several steps at an equally small reprojection error. Points triangulated from
+            # such a pose's baseline come out far too near, and the map's scale goes with
+            # them. The keyframes that share its points pin it down.
+            self._local_ba(kf)
         if self.rig.mono or self.rig.stereo:
             # Stereo far points have no depth: they are triangulated from the motion.
             self._triangulate(kf)
