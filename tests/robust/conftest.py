@@ -122,8 +122,9 @@ def pytest_runtest_logreport(report: pytest.TestReport) -> None:
 
 def _order(variant: str) -> tuple[int, str]:
     known = ("noise", "drop-first", "drop-every-10th")
-    if variant.isdigit():
-        return (int(variant), "")
+    seed, _, rest = variant.partition("-")
+    if seed.isdigit():
+        return (int(seed), rest)
     return (100 + known.index(variant) if variant in known else 200, variant)
 
 
