@@ -54,6 +54,10 @@ def evaluate_run(
 
     assert result.trajectory is not None
     estimate, mesh = result.trajectory, result.mesh
+    if result.truth_to_estimate is not None:
+        groundtruth = Trajectory(
+            groundtruth.stamps_ns, groundtruth.world_from_body @ result.truth_to_estimate
+        )
 
     with timings.stage("evaluate"):
         try:

@@ -150,12 +150,15 @@ class RgbdFrame:
 
 @dataclass(frozen=True)
 class ImageFrame:
-    """A colour or grey image. ``image`` is (H, W, 3) uint8 RGB or (H, W) uint8."""
+    """A colour or grey image. ``image`` is (H, W, 3) uint8 RGB or (H, W) uint8.
+    ``body_from_camera`` (4, 4) places the camera on the body the source's ground truth and
+    IMU refer to (None: the camera is the body)."""
 
     stamp_ns: int
     image: NDArray[np.uint8]
     camera: PinholeCamera | None = None
     name: str = ""
+    body_from_camera: NDArray[np.float64] | None = None
 
 
 @dataclass(frozen=True)
@@ -364,3 +367,7 @@ class SlamResult:
     ``trajectory`` is the first robot's)."""
     metrics: dict[str, Any] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
+    truth_to_estimate: NDArray[np.float64] | None = None
+    """(4, 4) pose of what ``trajectory`` follows on the ground truth's body, when it is not
+    the body: the ground truth is moved onto it before scoring (a monocular run follows its
+    camera, since a map without metric scale cannot carry the camera's offset on the body)."""

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from conftest import shared_path
 
-from slamcli.errors import FormatError, InputError
+from slamcli.errors import ConfigError, FormatError, InputError
 from slamcli.formats import open_source, sniff
 from slamcli.formats.euroc import (
     EurocSource,
@@ -22,7 +22,7 @@ from slamcli.formats.euroc import (
 from slamcli.formats.euroc.calibration import EQUIDISTANT, CameraSensor
 from slamcli.geometry.camera import project, unproject
 from slamcli.geometry.se3 import inverse
-from slamcli.types import ImuFrame, PinholeCamera, StereoFrame
+from slamcli.types import ImageFrame, ImuFrame, PinholeCamera, StereoFrame
 
 FIRST_STAMP = 1403715273262142976
 LAST_PAIR_STAMP = 1403715277962142976
@@ -323,13 +323,138 @@ def test_open_source_sniffs_the_folder_and_mav0(excerpt: Path, tmp_path: Path) -
     assert not sniff.euroc(tmp_path / "notmav")
 
 
-def test_a_folder_without_cam1_is_refused(excerpt: Path, tmp_path: Path) -> None:
+def test_a_folder_with_cam0_alone_is_a_monocular_input(excerpt: Path, tmp_path: Path) -> None:
+    import cv2
+
     root = _copy(excerpt, tmp_path)
     shutil.rmtree(root / "mav0" / "cam1")
-    with pytest.raises(InputError, match=r"no cam1/data\.csv"):
+    src = EurocSource(root)
+    sensor = read_camera_sensor(excerpt / "mav0" / "cam0" / "sensor.yaml")
+    assert not src.stereo and src.frame_kinds == ("image", "imu")
+    assert len(src) == len(src.left_csv) == 95
+    frames = list(src.frames())
+    assert all(isinstance(f, ImageFrame) for f in frames) and len(frames) == 95
+    first = frames[0]
+    assert isinstance(first, ImageFrame)
+    # The recorded image with its camera as calibrated (distortion and all) and cam0's T_BS.
+    recorded = cv2.imread(str(excerpt / "mav0" / "cam0" / "data" / src.left_csv.files[0]), 0)
+    assert np.array_equal(first.image, recorded)
+    assert first.camera == sensor.camera and first.camera.is_distorted
+    assert first.body_from_camera is not None
+    np.testing.assert_array_equal(first.body_from_camera, sensor.body_from_sensor)
+    kinds = [type(f).__name__ for f in src.frames(("image", "imu"))]
+    assert kinds.count("ImuFrame") > 0 and kinds.count("ImageFrame") == 95
+    with pytest.raises(InputError, match="has no stereo frames"):
+        next(iter(src.frames(("stereo",))))
+    with pytest.raises(InputError, match=r"no cam1/data\.csv: no stereo pairs"):
+        _ = src.rig
+    info = src.info()
+    assert [s.name for s in info.streams][:2] == ["cam0", "imu0"]
+    assert not any(s.kind == "stereo" for s in info.streams)
+    assert info.camera == sensor.camera and "monocular" in info.camera_source
+    assert info.problems == []
+
+
+def test_a_stereo_folder_gives_cam0_alone_as_images(source: EurocSource) -> None:
+    frames = list(source.frames(("image",)))
+    assert len(frames) == len(source.left_csv)
+    assert all(isinstance(f, ImageFrame) and f.camera is not None for f in frames)
+    assert frames[0].camera == source.left_sensor.camera
+    with pytest.raises(ConfigError, match="stereo pairs or cam0's images, not both"):
+        next(iter(source.frames(("stereo", "image"))))
+
+
+def test_an_equidistant_cam0_is_remapped_to_a_pinhole(excerpt: Path, tmp_path: Path) -> None:
+    import cv2
+
+    root = _copy(excerpt, tmp_path)
+    shutil.rmtree(root / "mav0" / "cam1")
+    yaml_path = root / "mav0" / "cam0" / "sensor.yaml"
+    text = yaml_path.read_text().replace("radial-tangential", "equidistant")
+    yaml_path.write_text(text)
+    src = EurocSource(root)
+    raw = src.left_sensor
+    assert raw.model == EQUIDISTANT
+    frame = next(iter(src.frames()))
+    assert isinstance(frame, ImageFrame) and frame.camera is not None
+    cam = frame.camera
+    assert not cam.is_distorted and (cam.fx, cam.cx) == (raw.camera.fx, raw.camera.cx)
+    # A pinhole pixel of the remapped image shows the raw pixel the fisheye model puts there.
+    u, v = 600.0, 100.0
+    ray = np.array([[[(u - cam.cx) / cam.fx, (v - cam.cy) / cam.fy]]])
+    d = np.asarray(raw.coefficients, np.float64)
+    expected = cv2.fisheye.distortPoints(ray, raw.camera.K, d).reshape(2)
+    mx, my = src._fisheye_maps
+    np.testing.assert_allclose([mx[int(v), int(u)], my[int(v), int(u)]], expected, atol=0.05)
+
+
+def test_a_folder_without_cam0_is_refused(excerpt: Path, tmp_path: Path) -> None:
+    root = _copy(excerpt, tmp_path)
+    shutil.rmtree(root / "mav0" / "cam0")
+    with pytest.raises(InputError, match=r"no cam0/data\.csv"):
         EurocSource(root)
+
+
+def test_a_monocular_run_is_scored_against_the_truth_moved_onto_its_camera(
+    tmp_path: Path,
+) -> None:
+    """A monocular trajectory follows its camera (its map has no metric scale to carry the
+    camera's offset on the body): the body's ground truth is moved onto the camera."""
+    from scipy.spatial.transform import Rotation
+
+    from slamcli.geometry.se3 import make_pose
+    from slamcli.rundir import RunDir, Timings
+    from slamcli.scoring import evaluate_run
+    from slamcli.types import SlamResult, Trajectory
+
+    t = np.arange(50, dtype=np.int64) * 50_000_000
+    rng = np.random.default_rng(0)
+    # A body that turns about every axis while it moves: the camera's offset on it moves
+    # differently from the body, which no similarity of the whole path undoes.
+    turns = Rotation.from_rotvec(rng.normal(0.0, 0.6, (50, 3))).as_matrix()
+    body = np.stack(
+        [
+            make_pose(r, np.array([np.cos(0.1 * i), np.sin(0.1 * i), 0.01 * i]))
+            for i, r in enumerate(turns)
+        ]
+    )
+    body_from_camera = make_pose(np.eye(3)[[1, 2, 0]], np.array([0.3, -0.1, 0.05]))
+    truth = Trajectory(t, body)
+    camera = Trajectory(t, body @ body_from_camera)
+    scores = []
+    for moved in (body_from_camera, None):
+        with RunDir(tmp_path / f"run{moved is None}") as run:
+            result = SlamResult(trajectory=camera, truth_to_estimate=moved)
+            ev = evaluate_run(truth, result, run, Timings(), "sim3")
+        scores.append(ev["evaluation"]["ate"]["rmse"])
+    assert scores[0] < 1e-9 < 0.05 < scores[1]
 
 
 def test_unknown_kinds_are_refused(source: EurocSource) -> None:
     with pytest.raises(InputError, match="has no rgbd frames"):
         next(iter(source.frames(("rgbd",))))
+
+
+def test_info_checks_the_imu_against_the_camera(tmp_path: Path) -> None:
+    """The in-flight excerpt's IMU is clean, and lines up with cam0; the same IMU written in
+    deg/s is named as such, with the file."""
+    mh05 = shared_path("vi", "euroc_MH05_a")
+    clean = EurocSource(mh05).info()
+    check = clean.details["imu_check"]
+    assert clean.problems == [] and check["gaps"] == 0 and check["uncovered_images"] == 0
+    assert abs(check["rate_hz"] - 200.0) < 0.1
+    assert check["imu_before_first_image_s"] == pytest.approx(1.0, abs=0.01)
+    copy = tmp_path / "mh05"
+    shutil.copytree(mh05, copy, symlinks=True)
+    csv = copy / "mav0" / "imu0" / "data.csv"
+    csv.parent.chmod(0o755)  # the shared data may be read-only, and its copy with it
+    rows = csv.read_text().splitlines()
+    out = [rows[0]]
+    for row in rows[1:]:
+        f = row.split(",")
+        out.append(",".join([f[0], *(f"{float(v) * 180 / np.pi:.9f}" for v in f[1:4]), *f[4:]]))
+    csv.unlink()
+    csv.write_text("\n".join(out) + "\n")
+    bad = EurocSource(copy).info()
+    assert bad.details["imu_check"]["gyro_units_suspect"]
+    assert any("mav0/imu0/data.csv" in p and "deg/s" in p for p in bad.problems)

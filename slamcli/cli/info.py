@@ -222,8 +222,12 @@ def _show(info: SourceInfo) -> None:
         items = _scan_items(info)
     elif any(s.kind == "stereo" for s in info.streams):
         items = _stereo_items(info)
+    elif not d.get("depth_topic") and not any(s.kind == "depth" for s in info.streams):
+        items = {"frames": f"{info.frames} images (no depth: monocular)"}
     else:
         items = {"frames": f"{info.frames} paired RGB-D frames"}
+    if d.get("imu_check"):
+        items["imu"] = _imu_summary(d["imu_check"])
     if d.get("rgb_topic"):
         items["topics"] = f"colour {d['rgb_topic']}, depth {d['depth_topic']}"
     health = d.get("health")
@@ -376,3 +380,24 @@ def _stereo_items(info: SourceInfo) -> dict[str, Any]:
     if d.get("times_source"):
         items["times"] = d["times_source"]
     return items
+
+
+def _imu_summary(check: dict[str, Any]) -> str:
+    """One line on an IMU stream's checks: its rate, gaps and stamp problems, and how its time
+    lines up with the camera's."""
+    rate = check.get("rate_hz")
+    parts = [f"{rate:.1f} Hz" if rate else "no rate", f"{check['samples']} samples"]
+    gaps = check.get("gaps", 0)
+    parts.append(
+        f"{gaps} gap(s), the longest {check['largest_gap_s']:.3f} s" if gaps else "no gaps"
+    )
+    bad = [
+        f"{check[k]} {label}"
+        for k, label in (("duplicates", "duplicate stamp(s)"), ("backwards", "backwards"))
+        if check.get(k)
+    ]
+    parts.append(", ".join(bad) if bad else "stamps increase")
+    before, after = check.get("imu_before_first_image_s"), check.get("imu_after_last_image_s")
+    if before is not None and after is not None:
+        parts.append(f"{before:.2f} s before the first image, {after:.2f} s after the last")
+    return "; ".join(parts)

@@ -1,14 +1,21 @@
-"""EuRoC / ASL folders as a :class:`~slamcli.formats.base.Source` of rectified stereo pairs and
-IMU samples.
+"""EuRoC / ASL folders as a :class:`~slamcli.formats.base.Source` of rectified stereo pairs,
+single images and IMU samples.
 
 The layout (a folder holding ``mav0/``, or ``mav0/`` itself)::
 
     mav0/cam0/data.csv      #timestamp [ns],filename     and cam0/data/<stamp>.png
     mav0/cam0/sensor.yaml   T_BS, resolution, intrinsics, distortion (calibration.py)
-    mav0/cam1/...           the right camera, the same way
+    mav0/cam1/...           the right camera, the same way (optional: cam0 alone is monocular)
     mav0/imu0/data.csv      t [ns], w_x w_y w_z [rad/s], a_x a_y a_z [m/s^2]
     mav0/imu0/sensor.yaml   T_BS, rate_hz, noise densities and random walks
     mav0/state_groundtruth_estimate0/data.csv   optional: EuRoC's ground truth of the body
+
+A folder with ``cam0`` alone gives single images (``image``) and IMU samples: a monocular
+input. A stereo folder gives ``image`` frames too: ``cam0``'s images alone, for a monocular
+run. An ``image`` frame is the recorded image with its camera as calibrated (OpenCV's k1 k2 p1
+p2 for the radial-tangential model, undistorted by the pipeline's keypoints; an equidistant
+camera's image is remapped to a pinhole one with the same intrinsics) and ``cam0``'s ``T_BS``
+as its ``body_from_camera``.
 
 A stereo pair is a left and a right stamp whose images both exist. EuRoC's cameras are
 triggered together, so the two ``data.csv`` list equal stamps; they are paired one to one,
@@ -47,6 +54,7 @@ from slamcli.formats.base import (
     provided_kinds,
 )
 from slamcli.formats.euroc.calibration import (
+    EQUIDISTANT,
     CameraSensor,
     ImuSensor,
     StereoRectification,
@@ -58,12 +66,24 @@ from slamcli.formats.images import decode_image, image_size, read_image_file
 from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.text import iter_data_lines, parse_count, parse_floats
 from slamcli.formats.trajectory import read_trajectory
-from slamcli.types import Frame, ImuFrame, ProgressFn, StereoFrame, StereoRig, Trajectory
+from slamcli.types import (
+    Frame,
+    ImageFrame,
+    ImuFrame,
+    PinholeCamera,
+    ProgressFn,
+    StereoFrame,
+    StereoRig,
+    Trajectory,
+)
 
 log = logging.getLogger(__name__)
 
-FRAME_KINDS = ("stereo", "imu")
-"""The frame kinds an ASL folder provides."""
+FRAME_KINDS = ("stereo", "image", "imu")
+"""The frame kinds an ASL folder provides (one with ``cam0`` alone: ``image`` and ``imu``)."""
+
+MONO_FRAME_KINDS = ("image", "imu")
+"""The frame kinds of an ASL folder with ``cam0`` alone."""
 
 PAIR_MAX_DT_S = 0.001
 """Default pairing tolerance of left and right stamps, seconds (EuRoC's are equal)."""
@@ -76,6 +96,8 @@ GROUNDTRUTH_BESIDE = ("groundtruth_body.txt", "groundtruth.txt", "groundtruth.tu
 
 NAMED = 3
 """Images named in one problem line."""
+
+_NO_STAMPS = np.zeros(0, dtype=np.int64)
 
 MISSING_KEPT = 20
 """Missing images named per camera in ``info`` (and so in run.json); the others are counted.
@@ -187,13 +209,13 @@ def _exists(folder: Path, name: str, present: frozenset[str]) -> bool:
 
 
 def read_imu_csv(
-    path: str | Path,
+    path: str | Path, *, in_file_order: bool = False
 ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]]:
     """Read an ASL ``imu0/data.csv``: t [ns], w_x w_y w_z [rad/s], a_x a_y a_z [m/s^2].
 
     Returns:
         (N,) int64 stamps, (N, 3) float64 gyro rad/s and (N, 3) float64 accel m/s², sorted by
-        time (stable).
+        time (stable), or ``in_file_order`` as the file lists them (to check the stamps).
 
     Raises:
         FormatError: a line without 7 fields, a bad stamp or value (names file:line).
@@ -226,6 +248,8 @@ def read_imu_csv(
             p, f"column {col + 2}: IMU value {rows[row][col]!r} is not finite", numbers[row]
         )
     t = np.asarray(stamps, dtype=np.int64)
+    if in_file_order:
+        return t, values[:, :3], values[:, 3:]
     order = np.argsort(t, kind="stable")
     return t[order], values[order, :3], values[order, 3:]
 
@@ -238,14 +262,15 @@ def mav_folder(path: str | Path) -> Path:
 
 class EurocSource(SourceBase):
     """A EuRoC / ASL folder (see the module docstring) as a
-    :class:`~slamcli.formats.base.Source` of :class:`StereoFrame` and :class:`ImuFrame`.
+    :class:`~slamcli.formats.base.Source` of :class:`StereoFrame`, :class:`ImageFrame` and
+    :class:`ImuFrame`.
 
     Args:
         path: the folder holding ``mav0/``, or ``mav0/`` itself.
         max_dt: pairing tolerance of left and right stamps in seconds.
 
     Raises:
-        InputError: not a folder, or ``cam0``/``cam1`` missing.
+        InputError: not a folder, or ``cam0`` missing.
         FormatError: a malformed ``data.csv`` or ``sensor.yaml`` (names file, line or key).
         ConfigError: a bad option value.
     """
@@ -261,23 +286,26 @@ class EurocSource(SourceBase):
         if not self.path.is_dir():
             raise InputError(f"{self.path}: a EuRoC / ASL input is a folder")
         self.mav = mav_folder(self.path)
-        missing = [c for c in ("cam0", "cam1") if not (self.mav / c / "data.csv").is_file()]
-        if missing:
+        if not (self.mav / "cam0" / "data.csv").is_file():
             raise InputError(
-                f"{self.mav}: ASL folder has no "
-                + " and no ".join(c + "/data.csv" for c in missing),
-                hint="a EuRoC / ASL folder holds mav0/ with cam0/ and cam1/ (data.csv, data/, "
-                "sensor.yaml) and imu0/",
+                f"{self.mav}: ASL folder has no cam0/data.csv",
+                hint="a EuRoC / ASL folder holds mav0/ with cam0/ (data.csv, data/, sensor.yaml), "
+                "cam1/ the same way for a stereo pair, and imu0/",
             )
         self.max_dt = float(max_dt)
         self.stats = ReadStats()
+        self.stereo = (self.mav / "cam1" / "data.csv").is_file()
+        """Whether the folder has a right camera (``cam1``): else it is monocular."""
+        self.frame_kinds = FRAME_KINDS if self.stereo else MONO_FRAME_KINDS
         self.left_csv = read_image_csv(self.mav / "cam0" / "data.csv", existing_only=True)
-        self.right_csv = read_image_csv(self.mav / "cam1" / "data.csv", existing_only=True)
         self.left_sensor: CameraSensor = read_camera_sensor(self.mav / "cam0" / "sensor.yaml")
-        self.right_sensor: CameraSensor = read_camera_sensor(self.mav / "cam1" / "sensor.yaml")
-        self.rectification: StereoRectification = rectify_stereo(
-            self.left_sensor, self.right_sensor
-        )
+        self._rectification: StereoRectification | None = None
+        if self.stereo:
+            self.right_csv = read_image_csv(self.mav / "cam1" / "data.csv", existing_only=True)
+            self.right_sensor = read_camera_sensor(self.mav / "cam1" / "sensor.yaml")
+            self._rectification = rectify_stereo(self.left_sensor, self.right_sensor)
+        else:
+            self.right_csv = ImageCsv(self.mav / "cam1" / "data.csv", _NO_STAMPS, (), ())
         self._imu_folder = self.mav / "imu0"
         self.imu_sensor: ImuSensor | None = (
             read_imu_sensor(self._imu_folder / "sensor.yaml")
@@ -288,8 +316,12 @@ class EurocSource(SourceBase):
         """The first missing images of each camera (:data:`MISSING_KEPT`), named."""
         self.missing_count = self.left_csv.missing_count + self.right_csv.missing_count
         """How many listed images are missing."""
-        li, ri = associate_stamps(
-            self.left_csv.stamps_ns, self.right_csv.stamps_ns, round(self.max_dt * 1e9)
+        li, ri = (
+            associate_stamps(
+                self.left_csv.stamps_ns, self.right_csv.stamps_ns, round(self.max_dt * 1e9)
+            )
+            if self.stereo
+            else ([], [])
         )
         self.left_index = np.asarray(li, dtype=np.int64)
         self.right_index = np.asarray(ri, dtype=np.int64)
@@ -300,13 +332,47 @@ class EurocSource(SourceBase):
         return sniff.euroc(path)
 
     def __len__(self) -> int:
-        """Number of stereo pairs (left and right images both present)."""
-        return int(self.left_index.size)
+        """Number of stereo pairs (left and right images both present); of a monocular folder,
+        of ``cam0`` images."""
+        return int(self.left_index.size) if self.stereo else len(self.left_csv)
+
+    @property
+    def rectification(self) -> StereoRectification:
+        """The stereo pair's rectification.
+
+        Raises:
+            InputError: the folder has no ``cam1``.
+        """
+        if self._rectification is None:
+            raise InputError(
+                f"{self.mav}: ASL folder has no cam1/data.csv: no stereo pairs",
+                hint="run it monocular (--set mode=mono), or give the folder's cam1/",
+            )
+        return self._rectification
 
     @property
     def rig(self) -> StereoRig:
         """The rectified :class:`~slamcli.types.StereoRig` every frame carries."""
         return self.rectification.rig
+
+    @cached_property
+    def camera(self) -> PinholeCamera:
+        """``cam0`` as its ``image`` frames carry it: as calibrated (radial-tangential), or
+        the pinhole its equidistant images are remapped to."""
+        cam = self.left_sensor.camera
+        if self.left_sensor.model == EQUIDISTANT:
+            return cam.undistorted()
+        return cam
+
+    @cached_property
+    def _fisheye_maps(self) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        import cv2
+
+        cam = self.left_sensor.camera
+        d = np.asarray(self.left_sensor.coefficients, np.float64).reshape(4, 1)
+        return cv2.fisheye.initUndistortRectifyMap(
+            cam.K, d, np.eye(3), cam.K, (cam.width, cam.height), cv2.CV_32FC1
+        )
 
     @property
     def pair_stamps_ns(self) -> NDArray[np.int64]:
@@ -334,18 +400,27 @@ class EurocSource(SourceBase):
         """EuRoC's ground truth: world_from_body (body = IMU frame), or None without it."""
         return self._groundtruth
 
-    def frames(self, kinds: Collection[str] = ("stereo",)) -> Iterator[Frame]:
-        """Yield the requested kinds in time order (at equal stamps: IMU first).
+    def frames(self, kinds: Collection[str] | None = None) -> Iterator[Frame]:
+        """Yield the requested kinds in time order (at equal stamps: IMU first); by default
+        stereo pairs, or a monocular folder's images.
 
         ``stereo`` gives a rectified :class:`StereoFrame` (grey (H, W) uint8, or RGB for colour
-        images) per pair, ``imu`` an :class:`ImuFrame` per ``imu0`` row. Pairs whose images
-        cannot be decoded or are not of the calibrated size are skipped, logged and counted.
+        images) per pair, ``image`` an :class:`ImageFrame` per ``cam0`` image (see the module's
+        text), ``imu`` an :class:`ImuFrame` per ``imu0`` row. Images that cannot be decoded or
+        are not of the calibrated size are skipped, logged and counted. ``stereo`` and
+        ``image`` are not read together.
 
         Raises:
             ConfigError: an unknown kind.
             InputError: a kind an ASL folder does not have, or ``imu`` without ``imu0/data.csv``.
         """
+        if kinds is None:
+            kinds = ("stereo",) if self.stereo else ("image",)
         wanted = self._check_kinds(kinds)
+        if {"stereo", "image"} <= wanted:
+            raise ConfigError(
+                "a EuRoC / ASL folder gives stereo pairs or cam0's images, not both at once"
+            )
         imu = self._imu if "imu" in wanted else None
         if "imu" in wanted and imu is None:
             raise InputError(
@@ -353,7 +428,13 @@ class EurocSource(SourceBase):
                 hint="run without the IMU, or give the folder's imu0/",
             )
         imu_t = imu[0] if imu is not None else np.zeros(0, dtype=np.int64)
-        pair_t = self.pair_stamps_ns if "stereo" in wanted else np.zeros(0, dtype=np.int64)
+        pair_t = (
+            self.pair_stamps_ns
+            if "stereo" in wanted
+            else self.left_csv.stamps_ns
+            if "image" in wanted
+            else np.zeros(0, dtype=np.int64)
+        )
         t = np.concatenate([imu_t, pair_t])
         code = np.concatenate([np.zeros(imu_t.size, np.int64), np.ones(pair_t.size, np.int64)])
         idx = np.concatenate([np.arange(imu_t.size), np.arange(pair_t.size)]).astype(np.int64)
@@ -364,20 +445,42 @@ class EurocSource(SourceBase):
                 self.stats.read += 1
                 yield ImuFrame(int(imu[0][k]), accel_mps2=imu[2][k], gyro_radps=imu[1][k])
                 continue
-            frame = self._pair(k)
+            frame = self._pair(k) if "stereo" in wanted else self._image(k)
             if frame is not None:
                 self.stats.read += 1
                 yield frame
 
     def _check_kinds(self, kinds: Collection[str]) -> set[str]:
-        return provided_kinds(known_kinds(kinds), FRAME_KINDS, self.path, "a EuRoC / ASL folder")
+        what = "a EuRoC / ASL folder" if self.stereo else "an ASL folder with cam0 alone"
+        return provided_kinds(known_kinds(kinds), self.frame_kinds, self.path, what)
+
+    def _image(self, k: int) -> ImageFrame | None:
+        """``cam0`` image ``k``, or None (logged and counted in :attr:`stats`) when unusable."""
+        img = self._load(self.left_csv, k, self.left_sensor.camera, "image")
+        name = f"cam0/data/{self.left_csv.files[k]}"
+        if img is None:
+            self.stats.skipped += 1
+            self.stats.skipped_names.append(name)
+            return None
+        if self.left_sensor.model == EQUIDISTANT:
+            import cv2
+
+            img = cv2.remap(img, *self._fisheye_maps, cv2.INTER_LINEAR)
+        return ImageFrame(
+            int(self.left_csv.stamps_ns[k]),
+            img,
+            self.camera,
+            name,
+            self.left_sensor.body_from_sensor,
+        )
 
     def raw_pair(self, k: int) -> tuple[NDArray[np.uint8], NDArray[np.uint8]] | None:
         """Pair ``k``'s left and right images as recorded (not rectified): grey (H, W) or RGB
         (H, W, 3) uint8, or None (logged and counted in :attr:`stats`) when one is unusable."""
         li, ri = int(self.left_index[k]), int(self.right_index[k])
-        left = self._load(self.left_csv, li)
-        right = self._load(self.right_csv, ri) if left is not None else None
+        camera = self.rig.camera
+        left = self._load(self.left_csv, li, camera)
+        right = self._load(self.right_csv, ri, camera) if left is not None else None
         name = self._pair_name(li, ri)
         if left is not None and right is not None and left.ndim != right.ndim:
             log.warning("skipping the stereo pair %s: one image is grey, the other colour", name)
@@ -407,12 +510,13 @@ class EurocSource(SourceBase):
     def _pair_name(self, li: int, ri: int) -> str:
         return f"cam0/data/{self.left_csv.files[li]} + cam1/data/{self.right_csv.files[ri]}"
 
-    def _load(self, csv: ImageCsv, k: int) -> NDArray[np.uint8] | None:
+    def _load(
+        self, csv: ImageCsv, k: int, camera: PinholeCamera, what: str = "stereo pair"
+    ) -> NDArray[np.uint8] | None:
         """Image ``k`` of ``csv`` as grey (H, W) or RGB (H, W, 3) uint8, or None (logged) when
-        it is unreadable or not of the calibrated size."""
+        it is unreadable or not of ``camera``'s size."""
         import cv2
 
-        camera = self.rig.camera
         path = csv.image(k)
         data, reason = read_image_file(path)
         img: NDArray[Any] | None = None
@@ -425,7 +529,8 @@ class EurocSource(SourceBase):
             img = None
         if img is None:
             log.warning(
-                "skipping the stereo pair of %s: %s (the calibration is %dx%d)",
+                "skipping the %s of %s: %s (the calibration is %dx%d)",
+                what,
                 path,
                 reason,
                 camera.width,
@@ -445,28 +550,40 @@ class EurocSource(SourceBase):
         ``progress(done, total)``.
         """
         problems: list[str] = []
-        rig = self.rig
-        streams = [
-            *(self._camera_stream(csv) for csv in (self.left_csv, self.right_csv)),
-            StreamInfo.from_stamps("stereo", "stereo", self.pair_stamps_ns, "rectified pairs"),
-        ]
+        cams = [self.left_sensor, self.right_sensor] if self.stereo else [self.left_sensor]
+        csvs = [self.left_csv, self.right_csv] if self.stereo else [self.left_csv]
+        streams = [self._camera_stream(csv) for csv in csvs]
         details: dict[str, Any] = {
             "mav0": str(self.mav),
-            "baseline_m": rig.baseline_m,
             "distortion_model": self.left_sensor.model,
             "raw_cameras": {
-                "cam0": self.left_sensor.camera.to_dict()
-                | {"coefficients": list(self.left_sensor.coefficients)},
-                "cam1": self.right_sensor.camera.to_dict()
-                | {"coefficients": list(self.right_sensor.coefficients)},
+                f"cam{i}": c.camera.to_dict() | {"coefficients": list(c.coefficients)}
+                for i, c in enumerate(cams)
             },
-            "body_from_left": rig.body_from_left.tolist(),
-            "pair_max_dt_s": self.max_dt,
             "missing_images": list(self.missing),
             "missing_images_count": self.missing_count,
-            "unpaired_left": len(self.left_csv) - len(self),
-            "unpaired_right": len(self.right_csv) - len(self),
         }
+        if self.stereo:
+            rig = self.rig
+            streams.append(
+                StreamInfo.from_stamps("stereo", "stereo", self.pair_stamps_ns, "rectified pairs")
+            )
+            details |= {
+                "baseline_m": rig.baseline_m,
+                "body_from_left": rig.body_from_left.tolist(),
+                "pair_max_dt_s": self.max_dt,
+                "unpaired_left": len(self.left_csv) - len(self),
+                "unpaired_right": len(self.right_csv) - len(self),
+            }
+            camera = rig.camera
+            camera_source = (
+                f"rectified from mav0/cam0/sensor.yaml and mav0/cam1/sensor.yaml "
+                f"({self.left_sensor.model}, baseline {rig.baseline_m:.4f} m)"
+            )
+        else:
+            details["body_from_camera"] = self.left_sensor.body_from_sensor.tolist()
+            camera = self.camera
+            camera_source = f"mav0/cam0/sensor.yaml ({self.left_sensor.model}; no cam1: monocular)"
         if self.missing_count:
             problems.append(self._missing_problem())
         self._imu_info(streams, details, problems)
@@ -497,11 +614,8 @@ class EurocSource(SourceBase):
             streams=streams,
             frames=len(self),
             groundtruth=len(gt) if gt is not None else 0,
-            camera=rig.camera,
-            camera_source=(
-                f"rectified from mav0/cam0/sensor.yaml and mav0/cam1/sensor.yaml "
-                f"({self.left_sensor.model}, baseline {rig.baseline_m:.4f} m)"
-            ),
+            camera=camera,
+            camera_source=camera_source,
             problems=problems,
             details=details,
         )
@@ -533,6 +647,10 @@ class EurocSource(SourceBase):
     def _imu_info(
         self, streams: list[StreamInfo], details: dict[str, Any], problems: list[str]
     ) -> None:
+        """The IMU's stream, noise settings and checks (:func:`check_imu`: stamps, gaps, rate,
+        how its time lines up with ``cam0``'s, units, saturation)."""
+        from slamcli.formats.imu_checks import check_imu
+
         imu = self._imu
         if imu is None:
             problems.append("no imu0/data.csv: no IMU frames")
@@ -542,10 +660,21 @@ class EurocSource(SourceBase):
             details["imu"] = {"rate_hz": self.imu_sensor.rate_hz} | self.imu_sensor.noise()
         elif imu is not None:
             problems.append("no imu0/sensor.yaml: the IMU noise settings are unknown")
+        if imu is not None:
+            raw = read_imu_csv(self._imu_folder / "data.csv", in_file_order=True)
+            report = check_imu(
+                *raw,
+                camera_stamps_ns=self.left_csv.stamps_ns,
+                rate_hz=self.imu_sensor.rate_hz if self.imu_sensor is not None else None,
+                where="mav0/imu0/data.csv",
+            )
+            details["imu_check"] = report.to_dict()
+            problems.extend(report.problems)
 
     def _check_sizes(self, progress: ProgressFn | None) -> list[str]:
-        camera = self.rig.camera
-        jobs = [(self.left_csv, int(k)) for k in self.left_index] + [
+        camera = self.rig.camera if self.stereo else self.left_sensor.camera
+        left = self.left_index if self.stereo else np.arange(len(self.left_csv))
+        jobs = [(self.left_csv, int(k)) for k in left] + [
             (self.right_csv, int(k)) for k in self.right_index
         ]
         wrong: list[str] = []

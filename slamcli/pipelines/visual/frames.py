@@ -151,6 +151,7 @@ class Rig:
         self._pair: StereoRig | None = None
         self._camera: PinholeCamera | None = None
         self._raw_camera: PinholeCamera | None = None
+        self._body_from_camera: F64 | None = None
 
     @property
     def camera(self) -> PinholeCamera:
@@ -201,7 +202,17 @@ class Rig:
         """(4, 4) pose of the (left) camera on the body the source's ground truth refers to."""
         if self._pair is not None:
             return np.asarray(self._pair.body_from_left, np.float64)
+        if self._body_from_camera is not None:
+            return self._body_from_camera
         return np.eye(4)
+
+    @property
+    def trajectory_from_camera(self) -> F64:
+        """(4, 4) pose of the camera on what the trajectory follows: the body, except in a
+        monocular run, whose map has no metric scale to carry the camera's offset on the body
+        in: that trajectory follows the camera (and the ground truth is moved onto it to be
+        scored, :attr:`~slamcli.types.SlamResult.truth_to_estimate`)."""
+        return np.eye(4) if self.mono else self.body_from_camera
 
     def stereo_settings(self) -> StereoSettings:
         """How left keypoints are matched in the right image."""
@@ -257,6 +268,8 @@ class Rig:
         if self._raw_camera is None:
             self._raw_camera = cam
             self._camera = cam.undistorted()
+            if isinstance(frame, ImageFrame) and frame.body_from_camera is not None:
+                self._body_from_camera = np.asarray(frame.body_from_camera, np.float64)
         elif cam != self._raw_camera:
             raise InputError(
                 f"frame {frame.name or frame.stamp_ns}: the camera changed mid-sequence",

@@ -334,7 +334,7 @@ class VisualSlam(PipelineBase):
 
     def _bodies(self, cam_from_world: list[F64]) -> F64:
         """(N, 4, 4) world_from_body of cameras at ``cam_from_world``."""
-        body = self.rig.body_from_camera
+        body = self.rig.trajectory_from_camera
         if np.array_equal(body, np.eye(4)):
             # The camera is the body: no product, so the poses keep their exact bits.
             return np.stack([inverse(p) for p in cam_from_world]).reshape(-1, 4, 4)
@@ -390,7 +390,7 @@ class VisualSlam(PipelineBase):
             keyframes=keyframes,
             pose_graph=(
                 keyframes.world_from_body,
-                essential_graph(smap, kfs, self.rig.body_from_camera),
+                essential_graph(smap, kfs, self.rig.trajectory_from_camera),
             ),
             points=smap.pos[alive].copy(),
             point_colors=smap.color[alive].copy(),
@@ -404,4 +404,9 @@ class VisualSlam(PipelineBase):
                 "doubts": self._doubts(counts),
             },
             counts=counts,
+            truth_to_estimate=(
+                self.rig.body_from_camera
+                if self.rig.mono and not np.array_equal(self.rig.body_from_camera, np.eye(4))
+                else None
+            ),
         )
