@@ -119,7 +119,7 @@ INPUT_FORMATS: dict[str, InputFormat] = {
     "tum": InputFormat("a TUM RGB-D folder", ("rgbd", "image", "imu")),
     "redwood": InputFormat("an Open3D / Redwood RGB-D folder", ("rgbd", "image")),
     "kitti": InputFormat("a KITTI odometry folder", ("stereo", "image")),
-    "euroc": InputFormat("a EuRoC / ASL folder", ("stereo", "imu")),
+    "euroc": InputFormat("a EuRoC / ASL folder", ("stereo", "image", "imu")),
     "mrclam": InputFormat("an MRCLAM folder", ("odometry", "landmarks")),
     "victoria": InputFormat("a Victoria Park file", ("odometry", "landmarks")),
     "landmarks": InputFormat("a 'slamcli synth landmarks' folder", ("odometry", "landmarks")),
