@@ -742,3 +742,24 @@ def test_the_euroc_folder_round_trips_through_write_stereo_mcap(tmp_path: Path) 
     )
     assert valid.all()
     np.testing.assert_allclose(after.world_from_body, poses, atol=1e-6)
+
+
+def test_info_checks_the_imu_topic(euroc: _Euroc, tmp_path: Path) -> None:
+    """``info --deep`` runs the IMU checks on a log's IMU topic: EuRoC's is clean; the same
+    samples with the accelerometer in g are named, with the topic. A plain ``info`` (which
+    every run calls) does not read the topic."""
+    t, gyro, accel = euroc.imu
+    clean = _write(tmp_path / "imu.mcap", euroc.pairs, euroc.rp, euroc.tf, imu=euroc.imu)
+    in_g = _write(
+        tmp_path / "g.mcap", euroc.pairs, euroc.rp, euroc.tf, imu=(t, gyro, accel / 9.80665)
+    )
+    with open_source(clean) as source:
+        assert "imu_check" not in source.info().details
+        info = source.info(deep=True)
+    check = info.details["imu_check"]
+    assert info.details["imu_topic"] == "/imu0" and check["samples"] == len(t)
+    assert check["rate_hz"] == pytest.approx(200.0, rel=0.01) and check["problems"] == []
+    with open_source(in_g) as source:
+        bad = source.info(deep=True)
+    assert bad.details["imu_check"]["accel_units_suspect"]
+    assert any(p.startswith("/imu0") and " g" in p for p in bad.problems)

@@ -616,6 +616,13 @@ class McapSource(SourceBase):
             problems.extend(scan_problems)
         except InputError as exc:
             problems.append(f"scans: {exc.msg}")
+        if deep:
+            try:
+                imu_details, imu_problems = self._imu_info()
+                details.update(imu_details)
+                problems.extend(imu_problems)
+            except InputError as exc:
+                problems.append(f"imu: {exc.msg}")
         gt_count = 0
         try:
             gt = self._groundtruth_samples()
@@ -656,6 +663,47 @@ class McapSource(SourceBase):
             problems=problems,
             details=details,
         )
+
+    def _imu_info(self) -> tuple[dict[str, Any], list[str]]:
+        """The IMU topic's checks (:func:`~slamcli.formats.imu_checks.check_imu`: header
+        stamps in log order, gaps, rate, units, saturation), read in one pass over that topic
+        alone (``info --deep``: a run opens its source with ``info`` and need not read the
+        topic twice). Samples without both a gyroscope and an accelerometer reading are left
+        out of the checks and counted. How the IMU's time lines up with the camera's is left
+        to the run: the images' header stamps need every image decoded."""
+        from slamcli.formats.imu_checks import check_imu
+
+        topic = self.topic("imu", required=False)
+        if topic is None:
+            return {}, []
+        stamps: list[int] = []
+        gyro: list[NDArray[np.float64]] = []
+        accel: list[NDArray[np.float64]] = []
+        partial = 0
+        for _, rec in self._records([topic]):
+            if not isinstance(rec, ImuFrame):
+                continue
+            if rec.gyro_radps is None or rec.accel_mps2 is None:
+                partial += 1
+                continue
+            stamps.append(rec.stamp_ns)
+            gyro.append(rec.gyro_radps)
+            accel.append(rec.accel_mps2)
+        if partial and not stamps:
+            return {"imu_topic": topic, "imu_partial_samples": partial}, [
+                f"{topic}: {partial} sample(s), none with both a gyroscope and an "
+                "accelerometer reading: a visual-inertial run needs both"
+            ]
+        report = check_imu(
+            np.asarray(stamps, dtype=np.int64),
+            np.asarray(gyro, dtype=np.float64).reshape(-1, 3),
+            np.asarray(accel, dtype=np.float64).reshape(-1, 3),
+            where=topic,
+        )
+        details = {"imu_topic": topic, "imu_check": report.to_dict()}
+        if partial:
+            details["imu_partial_samples"] = partial
+        return details, list(report.problems)
 
     def _scan_info(self, deep: bool) -> tuple[dict[str, Any], list[str]]:
         """Details and problems of the scans (:meth:`ScanMounter.info`); with ``deep`` every
