@@ -92,7 +92,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slamcli.errors import ConfigError, InputError
-from slamcli.geometry import inverse
+from slamcli.geometry import inverse, so3_exp
 from slamcli.inertial.preintegration import ImuNoise, check_imu_samples, preintegrate
 
 if TYPE_CHECKING:
@@ -858,8 +858,8 @@ def _marginal_covariance(
 def levelling_rotation(down: ArrayLike) -> F64:
     """(3, 3) the smallest rotation that turns the unit vector ``down`` onto (0, 0, -1).
 
-    Rodrigues' formula about ``down × (0, 0, -1)``; a ``down`` pointing straight up turns by
-    π about x.
+    A turn about ``down × (0, 0, -1)`` by the angle between them; a ``down`` pointing
+    straight up turns by π about x.
     """
     d = np.asarray(down, dtype=np.float64)
     d = d / np.linalg.norm(d)
@@ -868,8 +868,10 @@ def levelling_rotation(down: ArrayLike) -> F64:
     if c < -1.0 + 1e-12:
         return np.diag([1.0, -1.0, -1.0])
     v = np.cross(d, target)
-    vx = np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
-    return np.eye(3) + vx + vx @ vx / (1.0 + c)
+    sin = float(np.linalg.norm(v))
+    if sin < 1e-15:
+        return np.eye(3)
+    return so3_exp(v / sin * math.atan2(sin, c))
 
 
 def gravity_angle_deg(a: ArrayLike, b: ArrayLike) -> float:

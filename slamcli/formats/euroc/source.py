@@ -385,11 +385,24 @@ class EurocSource(SourceBase):
         return self.right_csv.stamps_ns[self.right_index]
 
     @cached_property
+    def _imu_as_listed(
+        self,
+    ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]] | None:
+        """``imu0/data.csv`` in file order (for the stamp checks), read once; None without it."""
+        p = self._imu_folder / "data.csv"
+        return read_imu_csv(p, in_file_order=True) if p.is_file() else None
+
+    @cached_property
     def _imu(
         self,
     ) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.float64]] | None:
-        p = self._imu_folder / "data.csv"
-        return read_imu_csv(p) if p.is_file() else None
+        """The IMU samples sorted by time (stable), from the one read."""
+        listed = self._imu_as_listed
+        if listed is None:
+            return None
+        t, gyro, accel = listed
+        order = np.argsort(t, kind="stable")
+        return t[order], gyro[order], accel[order]
 
     @cached_property
     def _groundtruth(self) -> Trajectory | None:
@@ -661,9 +674,9 @@ class EurocSource(SourceBase):
         elif imu is not None:
             problems.append("no imu0/sensor.yaml: the IMU noise settings are unknown")
         if imu is not None:
-            raw = read_imu_csv(self._imu_folder / "data.csv", in_file_order=True)
+            assert self._imu_as_listed is not None
             report = check_imu(
-                *raw,
+                *self._imu_as_listed,
                 camera_stamps_ns=self.left_csv.stamps_ns,
                 rate_hz=self.imu_sensor.rate_hz if self.imu_sensor is not None else None,
                 where="mav0/imu0/data.csv",

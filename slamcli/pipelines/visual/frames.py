@@ -214,6 +214,13 @@ class Rig:
         scored, :attr:`~slamcli.types.SlamResult.truth_to_estimate`)."""
         return np.eye(4) if self.mono else self.body_from_camera
 
+    @property
+    def truth_to_trajectory(self) -> F64 | None:
+        """(4, 4) pose of what the trajectory follows on the ground truth's body, when it is
+        not the body (a monocular camera mounted off the body), else None."""
+        body = self.body_from_camera
+        return body if self.mono and not np.array_equal(body, np.eye(4)) else None
+
     def stereo_settings(self) -> StereoSettings:
         """How left keypoints are matched in the right image."""
         return StereoSettings(min_depth_m=self.config.depth_min_m, scale=self.orb.scale)

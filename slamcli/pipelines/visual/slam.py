@@ -404,9 +404,5 @@ class VisualSlam(PipelineBase):
                 "doubts": self._doubts(counts),
             },
             counts=counts,
-            truth_to_estimate=(
-                self.rig.body_from_camera
-                if self.rig.mono and not np.array_equal(self.rig.body_from_camera, np.eye(4))
-                else None
-            ),
+            truth_to_estimate=self.rig.truth_to_trajectory,
         )
