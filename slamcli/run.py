@@ -21,7 +21,7 @@ from slamcli.formats.base import ReadAhead, ReadStats, Source, SourceInfo
 from slamcli.interrupts import watched
 from slamcli.pipelines import Evaluation, Pipeline
 from slamcli.rundir import RunDir, Timings, hash_input
-from slamcli.types import LandmarkMap, ProgressFn, SlamResult, Trajectory
+from slamcli.types import ImuFrame, LandmarkMap, ProgressFn, SlamResult, Trajectory
 from slamcli.worker import Background
 
 log = logging.getLogger(__name__)
@@ -252,6 +252,9 @@ def _feed(pipe: Pipeline, items: Any, total: int, progress: ProgressFn | None) -
         for frame in reader:
             pipe.process(frame)
             interrupted()
+            if isinstance(frame, ImuFrame):
+                # IMU samples come between the frames a run counts.
+                continue
             frames += 1
             if progress:
                 progress(frames, max(total, frames))

@@ -255,6 +255,7 @@ def initialise_inertial(
     min_duration_s: float = MIN_DURATION_S,
     max_scale_std: float = MAX_SCALE_STD,
     max_gravity_std_deg: float = MAX_GRAVITY_STD_DEG,
+    max_chi2_per_dof: float = MAX_CHI2_PER_DOF,
     max_iterations: int = MAX_ITERATIONS,
 ) -> InertialInit | None:
     """Scale, gravity, velocities and biases of a window of keyframes (module docstring).
@@ -332,10 +333,10 @@ def initialise_inertial(
     if init is None:
         return _refuse("the scale and gravity are not determined: their information is singular")
     init = replace(init, rotation_rms_deg=rotation_rms, iterations=iterations)
-    if init.chi2_per_dof > MAX_CHI2_PER_DOF:
+    if init.chi2_per_dof > max_chi2_per_dof:
         return _refuse(
             f"the map and the IMU disagree far beyond their noise (chi2 per degree of freedom "
-            f"{init.chi2_per_dof:.3g}, at most {MAX_CHI2_PER_DOF:g}): check the clock offset, "
+            f"{init.chi2_per_dof:.3g}, at most {max_chi2_per_dof:g}): check the clock offset, "
             "body_from_camera and position_sigma_m"
         )
     if init.scale_std > max_scale_std or init.gravity_std_deg > max_gravity_std_deg:

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -81,6 +81,20 @@ class ImuNoise:
             accel_random_walk=sensor.accelerometer_random_walk,
             rate_hz=sensor.rate_hz,
             body_from_imu=np.asarray(sensor.body_from_sensor, dtype=np.float64),
+        )
+
+    @classmethod
+    def from_details(cls, details: dict[str, Any]) -> ImuNoise:
+        """The noise model a source's ``info`` gives as ``details["imu"]``: the ASL names of
+        :meth:`slamcli.formats.euroc.ImuSensor.noise`, ``rate_hz`` and, when the IMU is not
+        the body, ``body_from_imu`` (4 rows of 4)."""
+        return cls(
+            gyro_noise_density=float(details["gyroscope_noise_density"]),
+            gyro_random_walk=float(details["gyroscope_random_walk"]),
+            accel_noise_density=float(details["accelerometer_noise_density"]),
+            accel_random_walk=float(details["accelerometer_random_walk"]),
+            rate_hz=float(details.get("rate_hz", 200.0)),
+            body_from_imu=np.asarray(details.get("body_from_imu", np.eye(4)), dtype=np.float64),
         )
 
     @classmethod

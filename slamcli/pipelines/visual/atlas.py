@@ -408,23 +408,13 @@ class Atlas:
         (4, 4; a rigid transform times a scale for monocular maps) and relabel it; the frames
         hanging from its keyframes take its new scale. ``keyframes`` are the two keyframes
         whose recognised place joined the maps, for the record."""
-        smap, w = self.map, keep_from_gone
-        s = float(np.cbrt(np.linalg.det(w[:3, :3])))
-        moved_kfs = {k.id for k in smap.keyframes if k.map_id == gone}
+        smap = self.map
+        s = self.transform_map(gone, keep_from_gone)
         for k in smap.keyframes:
             if k.map_id == gone:
-                moved = w @ inverse(k.cam_from_world)
-                moved[:3, :3] /= s
-                k.cam_from_world = inverse(moved)
                 k.map_id = keep
         ids = np.flatnonzero(smap.map_id[: smap.n] == gone)
-        smap.pos[ids] = smap.pos[ids] @ w[:3, :3].T + w[:3, 3]
         smap.map_id[ids] = keep
-        if s != 1.0:
-            # Frames hang from their keyframe in its units, which the similarity rescales.
-            for rec in self.frames:
-                if rec.kf in moved_kfs:
-                    rec.cam_from_kf[:3, 3] *= s
         for m in self.maps:
             if m.id == gone:
                 m.merged_into = keep
@@ -433,6 +423,31 @@ class Atlas:
         self.merges.append(
             {"maps": [keep, gone], "keyframes": list(keyframes), "scale": round(s, 5)}
         )
+
+    def transform_map(self, map_id: int, new_from_old: F64) -> float:
+        """Move every keyframe and point of map ``map_id`` by the similarity ``new_from_old``
+        (4, 4: a rotation times a scale, and a translation); the frames hanging from its
+        keyframes, and its culled keyframes' offsets from their parents, take the new scale.
+        Returns the scale."""
+        smap, w = self.map, new_from_old
+        s = float(np.cbrt(np.linalg.det(w[:3, :3])))
+        moved_kfs = {k.id for k in smap.keyframes if k.map_id == map_id}
+        for k in smap.keyframes:
+            if k.map_id == map_id:
+                moved = w @ inverse(k.cam_from_world)
+                moved[:3, :3] /= s
+                k.cam_from_world = inverse(moved)
+                if s != 1.0 and k.from_parent is not None:
+                    k.from_parent = k.from_parent.copy()
+                    k.from_parent[:3, 3] *= s
+        ids = np.flatnonzero(smap.map_id[: smap.n] == map_id)
+        smap.pos[ids] = smap.pos[ids] @ w[:3, :3].T + w[:3, 3]
+        if s != 1.0:
+            # Frames hang from their keyframe in its units, which the similarity rescales.
+            for rec in self.frames:
+                if rec.kf in moved_kfs:
+                    rec.cam_from_kf[:3, 3] *= s
+        return s
 
     def rescale_frames(self, scales: dict[int, float]) -> None:
         """Frames hang from their keyframe in its units: those of the keyframes in ``scales``

@@ -5,8 +5,8 @@ process, and its result taken back into the map."""
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -16,6 +16,10 @@ from slamcli.pipelines.visual.atlas import Keyframe, SparseMap
 from slamcli.pipelines.visual.config import VisualConfig
 from slamcli.pipelines.visual.frames import Rig
 from slamcli.worker import Pending, SideProcess
+
+if TYPE_CHECKING:
+    from slamcli.inertial.bundle import InertialTerms
+    from slamcli.pipelines.visual.inertial import Inertial
 
 I64 = NDArray[np.int64]
 
@@ -33,6 +37,7 @@ class BaJob:
     okp: list[int]
     args: tuple[Any, ...]
     kwargs: dict[str, Any]
+    chain: list[int] = field(default_factory=list)
 
 
 class BundleAdjuster:
@@ -49,31 +54,45 @@ class BundleAdjuster:
     ) -> None:
         self.config, self.rig, self.map, self.stats, self.side = config, rig, smap, stats, side
         self._pending: tuple[BaJob, Pending[Any]] | None = None
+        self.inertial: Inertial | None = None
 
     def start(
-        self, kfs: list[Keyframe], fixed: NDArray[np.bool_], pids: I64, iterations: int
+        self,
+        kfs: list[Keyframe],
+        fixed: NDArray[np.bool_],
+        pids: I64,
+        iterations: int,
+        inertial: InertialTerms | None = None,
     ) -> None:
         """Start adjusting keyframes ``kfs`` (``fixed`` held) and points ``pids`` on the side
-        process; :meth:`settle` takes the result in."""
-        from slamcli.vision.bundle_adjustment import bundle_adjust
-
-        job = self._job(kfs, fixed, pids, iterations)
+        process, with the inertial terms of its first keyframes when given; :meth:`settle`
+        takes the result in."""
+        job = self._job(kfs, fixed, pids, iterations, inertial)
         if job is not None:
-            self._pending = (job, self.side.submit(bundle_adjust, *job.args, **job.kwargs))
+            self._pending = (job, self.side.submit(_solver(job), *job.args, **job.kwargs))
 
     def bundle(
-        self, kfs: list[Keyframe], fixed: NDArray[np.bool_], pids: I64, iterations: int
+        self,
+        kfs: list[Keyframe],
+        fixed: NDArray[np.bool_],
+        pids: I64,
+        iterations: int,
+        inertial: InertialTerms | None = None,
     ) -> None:
-        """Bundle-adjust keyframes ``kfs`` (``fixed`` held) and points ``pids`` now; drop the
-        observations that end up outliers."""
-        from slamcli.vision.bundle_adjustment import bundle_adjust
-
-        job = self._job(kfs, fixed, pids, iterations)
+        """Bundle-adjust keyframes ``kfs`` (``fixed`` held) and points ``pids`` now, with the
+        inertial terms of its first keyframes when given; drop the observations that end up
+        outliers."""
+        job = self._job(kfs, fixed, pids, iterations, inertial)
         if job is not None:
-            self._apply(job, bundle_adjust(*job.args, **job.kwargs))
+            self._apply(job, _solver(job)(*job.args, **job.kwargs))
 
     def _job(
-        self, kfs: list[Keyframe], fixed: NDArray[np.bool_], pids: I64, iterations: int
+        self,
+        kfs: list[Keyframe],
+        fixed: NDArray[np.bool_],
+        pids: I64,
+        iterations: int,
+        inertial: InertialTerms | None = None,
     ) -> BaJob | None:
         """The arrays of a bundle adjustment (a copy: the map may move on while it runs)."""
         # Every observation of the points by the problem's keyframes, read off the keyframes'
@@ -131,7 +150,11 @@ class BundleAdjuster:
             "obs_depth": None if self.rig.mono else dep,
             "baseline_m": self.rig.baseline_m,
         }
-        return BaJob(list(kfs), fixed.copy(), pids, of, op.tolist(), okp, args, kwargs)
+        chain: list[int] = []
+        if inertial is not None:
+            kwargs["inertial"] = inertial
+            chain = [kfs[i].id for i in inertial.chain.tolist()]
+        return BaJob(list(kfs), fixed.copy(), pids, of, op.tolist(), okp, args, kwargs, chain)
 
     def _apply(self, job: BaJob, result: Any) -> None:
         """Move the job's free keyframes and its points where the adjustment put them, and
@@ -151,6 +174,8 @@ class BundleAdjuster:
                 removed += 1
         self.stats.counts["ba_outliers_removed"] += removed
         self.map.update_geometry(job.pids[self.map.alive[job.pids]], descriptors=False)
+        if job.chain and self.inertial is not None:
+            self.inertial.take(job.chain, result.velocities, result.biases)
 
     def settle(self, within: str | None = None) -> bool:
         """Take the local bundle adjustment that runs apart, if any, into the map; returns
@@ -180,6 +205,28 @@ class BundleAdjuster:
         pids = np.unique(np.concatenate([k.point_ids[k.point_ids >= 0] for k in kfs]))
         pids = pids[self.map.alive[pids]]
         fixed = np.zeros(len(kfs), bool)
-        fixed[0] = True
-        self.bundle(kfs, fixed, pids, 20)
+        terms = None
+        if self.inertial is not None and self.inertial.active(main):
+            # The inertial chain first (its oldest keyframe anchors the gauge), the keyframes
+            # made before the initialisation, which have no state, after it, free.
+            chain = self.inertial.chain(main)
+            others = [k for k in kfs if k.id not in self.inertial.states]
+            kfs = chain + others
+            fixed = np.zeros(len(kfs), bool)
+            terms = self.inertial.terms(chain, held=0, anchored=True)
+        else:
+            fixed[0] = True
+        self.bundle(kfs, fixed, pids, 20, terms)
         self.stats.counts["global_ba"] += 1
+
+
+def _solver(job: BaJob) -> Any:
+    """The function that solves ``job``: GTSAM's visual-inertial adjustment when it has
+    inertial terms, else pycolmap's."""
+    if "inertial" in job.kwargs:
+        from slamcli.inertial.bundle import inertial_bundle_adjust
+
+        return inertial_bundle_adjust
+    from slamcli.vision.bundle_adjustment import bundle_adjust
+
+    return bundle_adjust

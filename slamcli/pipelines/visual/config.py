@@ -145,6 +145,32 @@ class VisualConfig:
     mono_min_points: int = setting(
         50, help="monocular initialisation: least triangulated points", min=8
     )
+    imu: bool = setting(
+        True,
+        help="with an IMU in the input, run visual-inertial: the map becomes metric (also "
+        "monocular) and gravity-aligned, z up, once the IMU is initialised; false ignores the IMU",
+    )
+    imu_init_s: float = setting(
+        2.0,
+        help="the IMU is initialised once the map's keyframes span this long, and retried at "
+        "each keyframe until the motion determines the scale and gravity",
+        unit="s",
+        gt=0.0,
+    )
+    imu_refine_s: float = setting(
+        3.0,
+        help="this long after the initialisation, the whole map is adjusted again with its "
+        "inertial terms (scale, gravity and biases refined over the longer stretch)",
+        unit="s",
+        gt=0.0,
+    )
+    imu_max_blind_s: float = setting(
+        5.0,
+        help="an initialised map poses frames on the IMU alone for at most this long when "
+        "vision fails (dark or blurred images); after that a new map is started",
+        unit="s",
+        gt=0.0,
+    )
     threads: int = setting(
         2,
         help="1 does everything on one core; 2 decodes and extracts features of the next "

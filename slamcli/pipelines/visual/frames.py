@@ -152,6 +152,9 @@ class Rig:
         self._camera: PinholeCamera | None = None
         self._raw_camera: PinholeCamera | None = None
         self._body_from_camera: F64 | None = None
+        # Visual-inertial: the map is metric once the IMU is initialised (also monocular),
+        # and the trajectory follows the body (the IMU).
+        self.inertial = False
 
     @property
     def camera(self) -> PinholeCamera:
@@ -161,9 +164,9 @@ class Rig:
 
     @property
     def evaluation(self) -> Evaluation:
-        """How the trajectory is scored: ``sim3`` without depth (no metric scale), else
-        ``se3``."""
-        return "sim3" if self.mono else "se3"
+        """How the trajectory is scored: ``sim3`` without depth or IMU (no metric scale),
+        else ``se3``."""
+        return "sim3" if self.mono and not self.inertial else "se3"
 
     @property
     def orb(self) -> OrbSettings:
@@ -211,15 +214,17 @@ class Rig:
         """(4, 4) pose of the camera on what the trajectory follows: the body, except in a
         monocular run, whose map has no metric scale to carry the camera's offset on the body
         in: that trajectory follows the camera (and the ground truth is moved onto it to be
-        scored, :attr:`~slamcli.types.SlamResult.truth_to_estimate`)."""
-        return np.eye(4) if self.mono else self.body_from_camera
+        scored, :attr:`~slamcli.types.SlamResult.truth_to_estimate`). A visual-inertial
+        run's map is metric: it follows the body."""
+        return np.eye(4) if self.mono and not self.inertial else self.body_from_camera
 
     @property
     def truth_to_trajectory(self) -> F64 | None:
         """(4, 4) pose of what the trajectory follows on the ground truth's body, when it is
         not the body (a monocular camera mounted off the body), else None."""
         body = self.body_from_camera
-        return body if self.mono and not np.array_equal(body, np.eye(4)) else None
+        off_body = self.mono and not self.inertial and not np.array_equal(body, np.eye(4))
+        return body if off_body else None
 
     def stereo_settings(self) -> StereoSettings:
         """How left keypoints are matched in the right image."""

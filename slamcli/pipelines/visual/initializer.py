@@ -9,6 +9,7 @@ import numpy as np
 
 from slamcli.pipelines.visual.atlas import Keyframe
 from slamcli.pipelines.visual.frames import Frame
+from slamcli.pipelines.visual.inertial import Inertial
 from slamcli.pipelines.visual.local_mapping import LocalMapping
 from slamcli.pipelines.visual.parts import Part, Shared
 from slamcli.vision.matching import TH_HIGH, match_ratio
@@ -26,6 +27,7 @@ class MonoInitializer(Part):
         self.mapper = mapper
         self._ref: Frame | None = None
         self.info: dict[str, Any] | None = None
+        self.inertial: Inertial | None = None
 
     def reset(self) -> None:
         """Start again from the next frame (a new map is started)."""
@@ -60,6 +62,14 @@ class MonoInitializer(Part):
         )
         if found.points is None:
             self.stats.counts[f"init_rejected_{found.reason}"] += 1
+            return None
+        if self.inertial is not None and not self.inertial.agrees(
+            ref.stamp_ns, cur.stamp_ns, found.cur_from_ref[:3, :3]
+        ):
+            # Two views can fit a wrong motion (a homography's other decomposition, a
+            # near-planar scene); the gyroscope knows the rotation between them.
+            self.stats.counts["init_rejected_gyro"] += 1
+            self._ref = cur
             return None
         good = found.good
         # Scale: median depth 1 in the reference.

@@ -18,6 +18,7 @@ from slamcli.geometry import inverse
 from slamcli.pipelines.visual.atlas import Keyframe
 from slamcli.pipelines.visual.bundle import BundleAdjuster
 from slamcli.pipelines.visual.frames import Frame
+from slamcli.pipelines.visual.inertial import Inertial
 from slamcli.pipelines.visual.parts import Part, Shared
 from slamcli.pipelines.visual.search import in_view, project_match
 from slamcli.vision.matching import TH_LOW, match_ratio, match_ratio_grouped
@@ -26,15 +27,21 @@ from slamcli.vision.two_view import triangulate_checked
 I64 = NDArray[np.int64]
 
 _CHI2_2D = 5.991
+INERTIAL_FIXED = 20
+"""Keyframes outside an inertial window that see its points, held in its adjustment (the
+ones that see the most)."""
+INERTIAL_MAX_GAP_S = 0.5
+"""An inertial map's keyframe is culled only if its neighbours in time are this close."""
 
 
 class LocalMapping(Part):
     """Keyframes into the map: :meth:`start_map` for a new RGB-D map's first keyframe,
     :meth:`insert_keyframe` for the keyframes that follow."""
 
-    def __init__(self, shared: Shared, ba: BundleAdjuster) -> None:
+    def __init__(self, shared: Shared, ba: BundleAdjuster, inertial: Inertial) -> None:
         super().__init__(shared)
         self.ba = ba
+        self.inertial = inertial
 
     def start_map(self, cur: Frame) -> Keyframe | None:
         """The first keyframe of a new RGB-D map, made from ``cur`` at the origin with points
@@ -55,6 +62,7 @@ class LocalMapping(Part):
         reference keyframe), with everything it adds to the map."""
         kf = self.new_keyframe(cur)
         kf.parent = parent.id
+        self.inertial.new_keyframe(kf)
         rows = np.flatnonzero(cur.point_ids >= 0)
         for r, pid in zip(rows.tolist(), cur.point_ids[rows].tolist(), strict=True):
             if self.map.alive[pid] and kf.id not in self.map.obs[pid]:
@@ -194,7 +202,11 @@ class LocalMapping(Part):
 
     def _local_ba(self, kf: Keyframe) -> None:
         """Adjust ``kf`` and its covisible neighbours (``local_window``) with the keyframes that
-        also see their points held fixed (or, without any, the map's first)."""
+        also see their points held fixed (or, without any, the map's first); in an
+        initialised visual-inertial map, :meth:`_inertial_ba` instead."""
+        if self.inertial.active(kf.map_id):
+            self._inertial_ba(kf)
+            return
         window = [kf] + [
             self.map.keyframes[k] for k, _ in self.map.covisible(kf)[: self.config.local_window]
         ]
@@ -223,6 +235,35 @@ class LocalMapping(Part):
             self.ba.bundle(window, np.array(fixed), pids, self.config.ba_iterations)
             return
         self.ba.start(window, np.array(fixed), pids, self.config.ba_iterations)
+
+    def _inertial_ba(self, kf: Keyframe) -> None:
+        """ORB-SLAM3's local inertial bundle adjustment: the last ``local_window`` keyframes
+        in time, joined by IMU terms, the one before them held (pose, velocity, bias), and
+        the other keyframes that see their points held."""
+        chain = self.inertial.chain(kf.map_id)[-(self.config.local_window + 1) :]
+        if len(chain) < 2:
+            return
+        window = chain[1:]
+        pids = np.unique(np.concatenate([k.point_ids[k.point_ids >= 0] for k in window]))
+        pids = pids[self.map.alive[pids]]
+        if pids.size == 0:
+            return
+        in_chain = {k.id for k in chain}
+        counts: dict[int, int] = {}
+        for pid in pids.tolist():
+            for k in self.map.obs[pid]:
+                if k not in in_chain and not self.map.keyframes[k].culled:
+                    counts[k] = counts.get(k, 0) + 1
+        fixed_ids = sorted(counts, key=lambda k: (-counts[k], k))[:INERTIAL_FIXED]
+        kfs = chain + [self.map.keyframes[k] for k in sorted(fixed_ids)]
+        fixed = np.array([False] * len(chain) + [True] * len(fixed_ids))
+        terms = self.inertial.terms(chain, held=1)
+        self.stats.counts["local_ba"] += 1
+        self.stats.counts["local_inertial_ba"] += 1
+        if self.rig.mono:
+            self.ba.bundle(kfs, fixed, pids, self.config.ba_iterations, terms)
+            return
+        self.ba.start(kfs, fixed, pids, self.config.ba_iterations, terms)
 
     def _repose(self, kf: Keyframe) -> None:
         """Refine a new keyframe's pose against the older points it sees, where the adjustment
@@ -259,6 +300,8 @@ class LocalMapping(Part):
             cand = self.map.keyframes[k]
             if cand.id == first or cand.id == kf.id or cand.culled or cand.loop_edges:
                 continue
+            if self.inertial.active(kf.map_id) and not self._cullable_in_time(cand):
+                continue
             rows = np.flatnonzero(cand.point_ids >= 0)
             if not self.rig.mono:
                 rows = rows[np.isfinite(cand.depth[rows])]
@@ -279,6 +322,19 @@ class LocalMapping(Part):
                 seen += np.bincount(r[finer], minlength=rows.size)
             if np.count_nonzero(seen >= 3) > 0.9 * rows.size:
                 self._cull(cand)
+
+    def _cullable_in_time(self, cand: Keyframe) -> bool:
+        """In an inertial map a keyframe is culled only when its neighbours in time stay
+        within ``INERTIAL_MAX_GAP_S`` of each other: the IMU terms that join them
+        integrate longer, and grow less certain, as the gap grows (ORB-SLAM3's rule)."""
+        chain = self.inertial.chain(cand.map_id)
+        ids = [k.id for k in chain]
+        if cand.id not in ids:
+            return True
+        i = ids.index(cand.id)
+        if i == 0 or i == len(chain) - 1:
+            return False
+        return (chain[i + 1].stamp_ns - chain[i - 1].stamp_ns) * 1e-9 <= INERTIAL_MAX_GAP_S
 
     def _cull(self, cand: Keyframe) -> None:
         nbs = [k for k, _ in self.map.covisible(cand) if k != cand.id]

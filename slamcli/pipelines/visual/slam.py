@@ -30,7 +30,9 @@ scores and reasons.
 
 from __future__ import annotations
 
+import logging
 import time
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -40,22 +42,25 @@ from slamcli.formats.base import Prefetch, SourceInfo
 from slamcli.geometry import inverse
 from slamcli.pipelines import Evaluation, PipelineBase
 from slamcli.pipelines.timing import Stats
-from slamcli.pipelines.visual.atlas import Atlas
+from slamcli.pipelines.visual.atlas import Atlas, Keyframe
 from slamcli.pipelines.visual.bundle import BundleAdjuster
 from slamcli.pipelines.visual.config import VisualConfig
 from slamcli.pipelines.visual.frames import AnyFrame, Extracted, Frame, Rig, refine_poses
+from slamcli.pipelines.visual.inertial import Inertial
 from slamcli.pipelines.visual.initializer import MonoInitializer
 from slamcli.pipelines.visual.local_mapping import LocalMapping
 from slamcli.pipelines.visual.loop_closing import LoopClosing, essential_graph
 from slamcli.pipelines.visual.parts import Shared
 from slamcli.pipelines.visual.places import Places
 from slamcli.pipelines.visual.tracking import Tracking
-from slamcli.types import SlamResult, Trajectory
+from slamcli.types import ImuFrame, SlamResult, Trajectory
 from slamcli.worker import SideProcess
 
 F64 = NDArray[np.float64]
 
-_STATES = ("tracked", "relocalised", "lost", "initialising", "new_map")
+log = logging.getLogger(__name__)
+
+_STATES = ("tracked", "relocalised", "inertial", "lost", "initialising", "new_map")
 
 
 class VisualSlam(PipelineBase):
@@ -79,9 +84,16 @@ class VisualSlam(PipelineBase):
         self.places = Places(cfg.vocabulary, self.atlas.map)
         shared = Shared(cfg, self.rig, self.atlas, self.places, self.stats)
         self.ba = BundleAdjuster(cfg, self.rig, self.atlas.map, self.stats, self._side)
-        self.mapper = LocalMapping(shared, self.ba)
+        self.inertial = Inertial(shared)
+        self.ba.inertial = self.inertial
+        self.mapper = LocalMapping(shared, self.ba, self.inertial)
         self.initializer = MonoInitializer(shared, self.mapper)
         self.tracker = Tracking(shared)
+        self.tracker.inertial = self.inertial
+        self.initializer.inertial = self.inertial
+        # Images wait here, in a visual-inertial run, until the IMU has a sample at or after
+        # their stamp (so that the same samples are known whatever the threads).
+        self._waiting: list[AnyFrame] = []
         self.loops = LoopClosing(shared, self.mapper, self.ba)
         self._features = Prefetch(self.rig.extract, ahead=cfg.threads == 2, name="orb")
         self._frames = 0
@@ -127,18 +139,55 @@ class VisualSlam(PipelineBase):
             )
         self.rig.mono = mode == "mono"
         self.rig.stereo = mode == "stereo"
-        return {"mono": ("image",), "stereo": ("stereo",), "rgbd": ("rgbd",)}[mode]
+        kinds = {"mono": ("image",), "stereo": ("stereo",), "rgbd": ("rgbd",)}[mode]
+        settings = info.details.get("imu")
+        has_imu = any(s.kind == "imu" and s.count > 0 for s in info.streams)
+        noise_known = isinstance(settings, dict) and "gyroscope_noise_density" in settings
+        if self.config.imu and has_imu and mode != "rgbd":
+            if not noise_known:
+                # An accelerometer alone (TUM's), or an IMU whose noise is not given.
+                log.info(
+                    "%s: the IMU's noise settings are unknown: the run is visual only",
+                    info.path,
+                )
+            else:
+                from slamcli.inertial.preintegration import ImuNoise
 
-    def process(self, frame: AnyFrame) -> None:
+                assert isinstance(settings, dict)
+                self.inertial.noise = ImuNoise.from_details(settings)
+                self.rig.inertial = True
+                kinds = (*kinds, "imu")
+        return kinds
+
+    def process(self, frame: AnyFrame | ImuFrame) -> None:
         """Queue a frame; with two threads its features are extracted while the previous
-        frame is tracked."""
+        frame is tracked. An IMU sample is kept, and releases the images it covers."""
         if self.config.threads == 2:
             self._side.start()
+        if isinstance(frame, ImuFrame):
+            self.inertial.add(frame)
+            last = self.inertial.last_stamp_ns
+            assert last is not None
+            while self._waiting and self._waiting[0].stamp_ns <= last:
+                self._push(self._waiting.pop(0))
+            return
+        if self.inertial.enabled:
+            self.inertial.note_image(frame.stamp_ns)
+            last = self.inertial.last_stamp_ns
+            if last is None or frame.stamp_ns > last or self._waiting:
+                self._waiting.append(frame)
+                return
+        self._push(frame)
+
+    def _push(self, frame: AnyFrame) -> None:
         for ready, features in self._features.push(frame):
             self._track_frame(ready, features.result())
 
     def finish(self) -> SlamResult:
         """Track what is queued, adjust the final map, and return the result."""
+        for frame in self._waiting:
+            self._push(frame)
+        self._waiting = []
         for ready, features in self._features.drain():
             self._track_frame(ready, features.result())
         self._features.close()
@@ -209,6 +258,8 @@ class VisualSlam(PipelineBase):
             if self.tracker.lost_too_long():
                 self._start_new_map()
             return "lost"
+        if state == "inertial":
+            return state
         self.tracker.accept(cur, state)
         if self.tracker.wants_keyframe(cur):
             with self.stats.timed("mapping"):
@@ -244,11 +295,40 @@ class VisualSlam(PipelineBase):
         assert self.tracker.reference is not None
         kf = self.mapper.insert_keyframe(cur, self.tracker.reference)
         self.places.index(kf)
+        if self.inertial.enabled:
+            self._inertial_steps(kf)
         if self.config.loop_closure:
             with self.stats.timed("loop"):
                 self.loops.detect(kf)
         self.tracker.follow(cur, kf)
         self.stats.counts["keyframes_made"] += 1
+
+    def _inertial_steps(self, kf: Keyframe) -> None:
+        """After keyframe ``kf``: initialise its map's IMU when due (then move the map into
+        the metric, gravity-aligned world and adjust it whole with its inertial terms), or
+        refine it ``imu_refine_s`` later."""
+        map_id = kf.map_id
+        if not self.inertial.active(map_id):
+            kfs = self.atlas.map.live(map_id)
+            if (kfs[-1].stamp_ns - kfs[0].stamp_ns) * 1e-9 < self.config.imu_init_s:
+                return
+            # The adjustment running apart works in the map's old frame.
+            self.ba.settle()
+            with self.stats.timed("imu_init"):
+                init = self.inertial.try_initialise(map_id)
+                if init is None:
+                    return
+                self.atlas.transform_map(map_id, self.inertial.gravity_aligned(init))
+                first = self.atlas.map.keyframes[self.inertial.chain(map_id)[0].id]
+                placed = self.inertial.place_head(map_id, first)
+                self.stats.counts["imu_placed_keyframes"] += placed
+                self.tracker.velocity = None
+                self.ba.global_ba(map_id)
+            return
+        if self.inertial.due_refinement(map_id):
+            with self.stats.timed("imu_init"):
+                self.ba.global_ba(map_id)
+                self.inertial.refined(map_id)
 
     def _start_new_map(self) -> None:
         """Tracking was lost for too long: the next frames start a map of their own."""
@@ -341,7 +421,21 @@ class VisualSlam(PipelineBase):
         camera_from_body = inverse(body)
         return np.stack([inverse(p) @ camera_from_body for p in cam_from_world]).reshape(-1, 4, 4)
 
-    def _doubts(self, counts: dict[str, int]) -> list[str]:
+    def _inertial_record(self, main: int | None) -> dict[str, Any]:
+        """The IMU's part of ``run.json``: whether the main map was initialised, the
+        initialisations and refinements (when, scale, gravity, biases), and the last
+        keyframe's bias estimate."""
+        chain = self.inertial.chain(main) if main is not None else []
+        last = self.inertial.states[chain[-1].id] if chain else None
+        return {
+            "initialised": main is not None and self.inertial.active(main),
+            "attempts": self.inertial.attempts,
+            "events": self.inertial.records,
+            "final_gyro_bias": None if last is None else [round(float(x), 7) for x in last[3:6]],
+            "final_accel_bias": None if last is None else [round(float(x), 6) for x in last[6:9]],
+        }
+
+    def _doubts(self, counts: dict[str, int], main: int | None = None) -> list[str]:
         """Why the result may be wrong, in words: loops refused as implausible (the first
         few, then how many more), maps lost and joined again by a merge, frames left in maps
         never merged into the main one."""
@@ -357,6 +451,18 @@ class VisualSlam(PipelineBase):
                     f"where frames {r['frames'][0]} and {r['frames'][1]} see one place"
                     f"{scale}: the poses on either side of the gap are only as good as that match"
                 )
+        if self.inertial.enabled and (main is None or not self.inertial.active(main)):
+            doubts.append(
+                f"the IMU was never initialised ({self.inertial.attempts} attempts refused: the "
+                "motion did not determine the scale and gravity): the trajectory is not "
+                "metric nor gravity-aligned"
+                + (" and has the map's arbitrary scale" if self.rig.mono else "")
+            )
+        inertial_frames = counts.get("frames_inertial", 0)
+        if inertial_frames:
+            doubts.append(
+                f"{inertial_frames} frames were posed on the IMU alone (vision failed on them)"
+            )
         apart = counts.get("frames_in_unmerged_maps", 0)
         if apart:
             doubts.append(
@@ -401,7 +507,8 @@ class VisualSlam(PipelineBase):
                 "maps": [m.to_dict() for m in self.atlas.maps],
                 "merges": self.atlas.merges,
                 "loop_closures": self.loops.records,
-                "doubts": self._doubts(counts),
+                "doubts": self._doubts(counts, main),
+                **({"inertial": self._inertial_record(main)} if self.inertial.enabled else {}),
             },
             counts=counts,
             truth_to_estimate=self.rig.truth_to_trajectory,

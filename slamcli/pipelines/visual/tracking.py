@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 from slamcli.geometry import inverse
 from slamcli.pipelines.visual.atlas import FrameRecord, Keyframe
 from slamcli.pipelines.visual.frames import Frame
+from slamcli.pipelines.visual.inertial import Inertial
 from slamcli.pipelines.visual.parts import Part, Shared
 from slamcli.pipelines.visual.search import in_view, project_match
 from slamcli.vision.matching import TH_HIGH, match_ratio
@@ -52,6 +53,8 @@ class Tracking(Part):
         self._velocity_ns = 0
         self.lost_run = 0
         self._since_reloc = 100
+        self._seen_ns = 0
+        self.inertial: Inertial | None = None
 
     def has_map(self) -> bool:
         """Whether there is a map to track in: the reference keyframe is in the current map."""
@@ -65,6 +68,7 @@ class Tracking(Part):
             frame.cam_from_world = kf.cam_from_world.copy()
             frame.inliers = int(np.count_nonzero(frame.point_ids >= 0))
             self.reference = kf
+            self._seen_ns = frame.stamp_ns
             self._record(frame, "tracked")
         self.velocity = None
         self.set_last(frames[-1][0])
@@ -78,7 +82,10 @@ class Tracking(Part):
 
     def locate(self, cur: Frame) -> str | None:
         """Pose ``cur`` (``cur.cam_from_world``, ``cur.point_ids``): its state, ``tracked`` or
-        ``relocalised``, or None when it is lost."""
+        ``relocalised``, or None when it is lost; in an initialised visual-inertial map,
+        :meth:`_locate_inertial`."""
+        if self.inertial is not None and self.inertial.active(self.atlas.current):
+            return self._locate_inertial(cur)
         pose = None
         state = "tracked"
         with self.stats.timed("track"):
@@ -112,8 +119,53 @@ class Tracking(Part):
             return None
         return state
 
+    def _locate_inertial(self, cur: Frame) -> str | None:
+        """Pose ``cur`` in an initialised visual-inertial map: the IMU predicts the pose, the
+        last frame's points are searched around it (else the reference keyframe's by
+        appearance, else relocalisation), then the local map. When vision fails the
+        prediction itself is the frame's pose, state ``inertial``, for ``imu_max_blind_s``
+        after the last frame vision posed; None after that."""
+        assert self.inertial is not None
+        predicted = self.inertial.predict(cur.stamp_ns)
+        pose = None
+        state = "tracked"
+        with self.stats.timed("track"):
+            if predicted is not None and self.last is not None and self.lost_run == 0:
+                pose = self._track_motion(cur, predicted)
+            if pose is None and self.lost_run == 0:
+                pose = self._track_reference(cur)
+        if pose is None and predicted is not None:
+            # After a blind stretch the last frame's points may be out of view: the local map
+            # is searched around the prediction.
+            pose = predicted
+            cur.point_ids[:] = -1
+        if pose is None:
+            with self.stats.timed("relocalise"):
+                pose = self._relocalise(cur)
+            state = "relocalised"
+            self._since_reloc = 0
+        if pose is not None:
+            cur.cam_from_world = pose
+            with self.stats.timed("local_map"):
+                if self._track_local_map(cur, wide=self.lost_run > 0):
+                    return state
+        self.last = None
+        blind_s = (cur.stamp_ns - self._seen_ns) * 1e-9
+        if predicted is not None and blind_s <= self.config.imu_max_blind_s:
+            cur.cam_from_world = predicted
+            cur.point_ids[:] = -1
+            cur.inliers = 0
+            self.lost_run += 1
+            self._record(cur, "inertial")
+            return "inertial"
+        self.lost_run += 1
+        return None
+
     def lost_too_long(self) -> bool:
-        """Whether frames have been lost for ``new_map_after_lost`` in a row."""
+        """Whether frames have been lost for ``new_map_after_lost`` in a row, or, in a
+        visual-inertial map, whether the IMU can no longer pose them."""
+        if self.inertial is not None and self.inertial.active(self.atlas.current):
+            return True
         return self.lost_run >= self.config.new_map_after_lost
 
     def accept(self, cur: Frame, state: str) -> None:
@@ -121,6 +173,7 @@ class Tracking(Part):
         against its reference keyframe."""
         self.lost_run = 0
         self._since_reloc += 1
+        self._seen_ns = cur.stamp_ns
         assert cur.cam_from_world is not None
         if self.last is not None and self.last.cam_from_world is not None:
             self.velocity = cur.cam_from_world @ inverse(self.last.cam_from_world)
@@ -150,12 +203,14 @@ class Tracking(Part):
             return self.velocity
         return np.asarray(se3_exp(se3_log(self.velocity) * (dt_ns / last_ns)), dtype=np.float64)
 
-    def _track_motion(self, cur: Frame) -> F64 | None:
-        """Constant-velocity prediction, refined on the last frame's points found by
-        projection."""
-        assert self.last is not None and self.velocity is not None
+    def _track_motion(self, cur: Frame, predicted: F64 | None = None) -> F64 | None:
+        """Constant-velocity prediction (or the IMU's, ``predicted``), refined on the last
+        frame's points found by projection."""
+        assert self.last is not None
         assert self.last.cam_from_world is not None and self._last_points is not None
-        predicted = self._step(cur.stamp_ns - self.last.stamp_ns) @ self.last.cam_from_world
+        if predicted is None:
+            assert self.velocity is not None
+            predicted = self._step(cur.stamp_ns - self.last.stamp_ns) @ self.last.cam_from_world
         world, desc, octv, pids = self._last_points
         th = 15.0 if self.rig.mono else 7.0
         for radius in (th, 2 * th):
@@ -233,8 +288,10 @@ class Tracking(Part):
         self.stats.counts["relocalisation_failed"] += 1
         return None
 
-    def _track_local_map(self, cur: Frame) -> bool:
-        """Search the local map by projection, refine the pose; whether tracking holds."""
+    def _track_local_map(self, cur: Frame, wide: bool = False) -> bool:
+        """Search the local map by projection, refine the pose; whether tracking holds.
+        ``wide`` searches as after a relocalisation (a pose predicted over a blind
+        stretch)."""
         assert cur.cam_from_world is not None
         local_kfs = self._local_keyframes(cur)
         if local_kfs:
@@ -249,7 +306,7 @@ class Tracking(Part):
         self.map.visible[pids] += 1
         if pids.size:
             octv = self.map.predict_octave(pids, dist)
-            th = 5.0 if self._since_reloc < 2 else 3.0
+            th = 5.0 if self._since_reloc < 2 or wide else 3.0
             pairs = project_match(
                 self.rig.camera,
                 self.map.sigma,
