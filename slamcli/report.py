@@ -21,8 +21,12 @@ def plot_evaluation(
     est_label: str = "estimate",
     timed: bool = True,
     mesh: TriangleMesh | None = None,
+    imu_states: Any = None,
 ) -> Path:
     """Write a PNG with a top view of ground truth and the aligned estimate, and ATE over time.
+    With ``imu_states`` ((K, 10) rows of a visual-inertial run's keyframes: stamp ns,
+    velocity, gyroscope and accelerometer biases), a last column shows the speed and the
+    biases over time.
 
     The top view shows the two axes along which the ground truth extends most: x-y for TUM
     and EuRoC conventions, x-z for KITTI's camera frame (y down). ``timed=False`` puts the
@@ -41,15 +45,18 @@ def plot_evaluation(
     t = (m.stamps_ns - m.stamps_ns[0]) * 1e-9 if timed else m.est_index.astype(float)
 
     # Fixed margins, not the constrained layout, which draws the figure twice to measure it.
-    fig = Figure(figsize=(18 if mesh is not None else 12, 5))
+    inertial = imu_states is not None and len(imu_states) > 0
+    widths = [1.0, 1.3] + ([1.0] if mesh is not None else []) + ([1.2] if inertial else [])
+    fig = Figure(figsize=(6 * len(widths), 5))
     FigureCanvasAgg(fig)
-    margins = {"left": 0.07 if mesh is None else 0.05, "right": 0.985, "bottom": 0.11}
-    margins |= {"top": 0.91, "wspace": 0.2}
+    margins = {"left": 0.07 if len(widths) == 2 else 0.05, "right": 0.985, "bottom": 0.11}
+    margins |= {"top": 0.91, "wspace": 0.25}
+    grid = fig.add_gridspec(1, len(widths), width_ratios=widths, **margins)
+    top, err = fig.add_subplot(grid[0]), fig.add_subplot(grid[1])
     if mesh is not None:
-        top, err, view = fig.subplots(1, 3, width_ratios=(1, 1.3, 1), gridspec_kw=margins)
-        _mesh_view(view, mesh, result)
-    else:
-        top, err = fig.subplots(1, 2, width_ratios=(1, 1.3), gridspec_kw=margins)
+        _mesh_view(fig.add_subplot(grid[2]), mesh, result)
+    if inertial:
+        _inertial_panels(fig, grid[len(widths) - 1], np.asarray(imu_states), int(m.stamps_ns[0]))
     top.plot(gt_xyz[:, ax0], gt_xyz[:, ax1], color="0.35", lw=1.5, ls="--", label=gt_label)
     top.plot(est_xyz[:, ax0], est_xyz[:, ax1], color="tab:blue", lw=1.2, label=est_label)
     err.plot(t, result.ate_m, color="tab:red", lw=1.0, label="ATE")
@@ -58,6 +65,33 @@ def plot_evaluation(
         top, err, (ax0, ax1), f"Top view, {result.alignment} alignment, {result.pairs} pairs", timed
     )
     return save_png(fig, path)
+
+
+def _inertial_panels(fig: Any, cell: Any, states: Any, t0_ns: int) -> None:
+    """Speed (upper) and biases (lower) per keyframe of a visual-inertial run."""
+    import numpy as np
+
+    speed_ax, bias_ax = cell.subgridspec(2, 1, hspace=0.45).subplots()
+    t = (states[:, 0] - t0_ns) * 1e-9
+    speed_ax.plot(t, np.linalg.norm(states[:, 1:4], axis=1), color="tab:blue", lw=1.2)
+    speed_ax.set_ylabel("speed (m/s)")
+    speed_ax.set_title("IMU state per keyframe")
+    speed_ax.grid(alpha=0.3)
+    for c, axis in enumerate("xyz"):
+        colour = ("tab:red", "tab:green", "tab:blue")[c]
+        bias_ax.plot(t, states[:, 7 + c], color=colour, lw=1.2, label=f"accel {axis} (m/s²)")
+        bias_ax.plot(
+            t,
+            10 * states[:, 4 + c],
+            color=colour,
+            lw=1.0,
+            ls="--",
+            label=f"gyro {axis} ×10 (rad/s)",
+        )
+    bias_ax.set_xlabel("time since the first pair (s)")
+    bias_ax.set_ylabel("bias")
+    bias_ax.legend(loc="best", fontsize="x-small", ncol=2)
+    bias_ax.grid(alpha=0.3)
 
 
 def finish_evaluation_axes(

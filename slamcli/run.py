@@ -312,8 +312,25 @@ def _score(
     return metrics
 
 
+IMU_STATES_HEADER = (
+    "stamp_ns,vx_mps,vy_mps,vz_mps,gyro_bias_x_radps,gyro_bias_y_radps,gyro_bias_z_radps,"
+    "accel_bias_x_mps2,accel_bias_y_mps2,accel_bias_z_mps2"
+)
+"""The columns of imu_states.csv: a visual-inertial run's keyframes, velocity in the world
+frame, biases in the IMU's."""
+
+
+def _write_imu_states(path: Path, states: Any) -> None:
+    """imu_states.csv: one row per keyframe (:data:`IMU_STATES_HEADER`)."""
+    lines = [IMU_STATES_HEADER]
+    for row in states:
+        lines.append(",".join([str(int(row[0])), *(f"{v:.9g}" for v in row[1:])]))
+    path.write_text("\n".join(lines) + "\n")
+
+
 def _export(run: RunDir, result: SlamResult, glb: bool) -> None:
     """trajectory.tum and each robot's, the filter's path, landmarks.csv, keyframes.tum,
+    imu_states.csv,
     mesh.ply (and .glb), graph.g2o and points.ply, for what the pipeline made."""
     from slamcli.formats.trajectory import write_tum
 
@@ -330,6 +347,8 @@ def _export(run: RunDir, result: SlamResult, glb: bool) -> None:
         write_landmarks_csv(run.output("landmarks.csv"), result.landmarks)
     if result.keyframes is not None and len(result.keyframes):
         write_tum(run.output("keyframes.tum"), result.keyframes)
+    if result.imu_states is not None and len(result.imu_states):
+        _write_imu_states(run.output("imu_states.csv"), result.imu_states)
     if result.mesh is not None and len(result.mesh.faces):
         from slamcli.formats.mesh import write_glb, write_ply
 

@@ -66,7 +66,14 @@ def evaluate_run(
             log.warning("no accuracy figures: %s", exc.msg)
             return {}
     with timings.stage("report"):
-        plot_evaluation(run.output("report.png"), ev, "ground truth", "estimate", mesh=mesh)
+        plot_evaluation(
+            run.output("report.png"),
+            ev,
+            "ground truth",
+            "estimate",
+            mesh=mesh,
+            imu_states=result.imu_states,
+        )
     return {"evaluation": ev.to_dict()}
 
 

@@ -367,6 +367,10 @@ class SlamResult:
     ``trajectory`` is the first robot's)."""
     metrics: dict[str, Any] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
+    imu_states: NDArray[np.float64] | None = None
+    """(K, 10) per keyframe of a visual-inertial run: stamp (ns, as float64), the body's
+    velocity (m/s, world frame), the gyroscope bias (rad/s) and the accelerometer bias (m/s²),
+    written as imu_states.csv."""
     truth_to_estimate: NDArray[np.float64] | None = None
     """(4, 4) pose of what ``trajectory`` follows on the ground truth's body, when it is not
     the body: the ground truth is moved onto it before scoring (a monocular run follows its

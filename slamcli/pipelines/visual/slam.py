@@ -511,5 +511,14 @@ class VisualSlam(PipelineBase):
                 **({"inertial": self._inertial_record(main)} if self.inertial.enabled else {}),
             },
             counts=counts,
+            imu_states=self._imu_states(main),
             truth_to_estimate=self.rig.truth_to_trajectory,
         )
+
+    def _imu_states(self, main: int | None) -> F64 | None:
+        """(K, 10) stamp, velocity and biases per keyframe of the main map, once its IMU is
+        initialised (see :attr:`~slamcli.types.SlamResult.imu_states`)."""
+        rows = self.inertial.table(main)
+        if not rows:
+            return None
+        return np.array([[r["stamp_ns"], *r["state"]] for r in rows], dtype=np.float64)
