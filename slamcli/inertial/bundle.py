@@ -50,6 +50,8 @@ logger = logging.getLogger(__name__)
 
 HELD_SIGMA = 1e-6
 """Standard deviation of the priors that hold a keyframe's pose, velocity and bias."""
+ANCHOR_ACCEL_BIAS_SIGMA = 0.01
+"""m/s²: how loosely an anchored keyframe's accelerometer bias is tied to its estimate."""
 ANCHOR_ROTATION_SIGMA = 0.1
 """rad: how loosely an anchored keyframe's rotation is tied to its value (the yaw, which
 nothing else observes, stays put; the tilt follows the IMU)."""
@@ -210,7 +212,7 @@ def inertial_bundle_adjust(
                 )
             )
     if inertial.anchored and inertial.held == 0:
-        from slamcli.inertial.initialisation import ACCEL_BIAS_SIGMA, GYRO_BIAS_SIGMA
+        from slamcli.inertial.initialisation import GYRO_BIAS_SIGMA
 
         i = chain[0]
         sigmas = np.array([ANCHOR_ROTATION_SIGMA] * 3 + [HELD_SIGMA] * 3)
@@ -220,7 +222,7 @@ def inertial_bundle_adjust(
             )
         )
         bias = gtsam.imuBias.ConstantBias(inertial.biases[0, 3:], inertial.biases[0, :3])
-        bias_sigmas = np.array([ACCEL_BIAS_SIGMA] * 3 + [GYRO_BIAS_SIGMA] * 3)
+        bias_sigmas = np.array([ANCHOR_ACCEL_BIAS_SIGMA] * 3 + [GYRO_BIAS_SIGMA] * 3)
         graph.add(
             gtsam.PriorFactorConstantBias(B(i), bias, gtsam.noiseModel.Diagonal.Sigmas(bias_sigmas))
         )

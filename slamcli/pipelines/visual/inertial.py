@@ -178,6 +178,55 @@ class Inertial(Part):
         nav = pim.predict(gtsam.NavState(gtsam.Pose3(self.world_from_body(kf)), state[:3]), bias)
         return nav.pose().matrix(), np.asarray(nav.velocity(), np.float64)
 
+    def predict_back(self, kf: Keyframe, stamp_ns: int) -> tuple[F64, F64] | None:
+        """``world_from_body`` and velocity at ``stamp_ns`` before keyframe ``kf``,
+        integrated back from its state: with ``ΔR, Δv, Δp`` preintegrated over
+        [``stamp_ns``, kf] in the earlier body frame, ``R = R_kf ΔRᵀ``,
+        ``v = v_kf - g Δt - R Δv`` and ``p = p_kf - v Δt - ½ g Δt² - R Δp``."""
+        import gtsam
+
+        assert self.noise is not None
+        if stamp_ns > kf.stamp_ns or not self.covers(stamp_ns, kf.stamp_ns):
+            return None
+        state = self.states[kf.id]
+        end = self.world_from_body(kf)
+        if stamp_ns == kf.stamp_ns:
+            return end, state[:3].copy()
+        bias = gtsam.imuBias.ConstantBias(state[6:9], state[3:6])
+        pim = gtsam.PreintegratedImuMeasurements(self.noise.params(), bias)
+        dt, gy, ac = self.readings(stamp_ns, kf.stamp_ns)
+        for step, w, f in zip(dt.tolist(), gy, ac, strict=True):
+            pim.integrateMeasurement(f, w, step)
+        g = np.array([0.0, 0.0, -self.noise.gravity_mps2])
+        t = pim.deltaTij()
+        r = end[:3, :3] @ pim.deltaRij().matrix().T
+        v = state[:3] - g * t - r @ pim.deltaVij()
+        body = np.eye(4)
+        body[:3, :3] = r
+        body[:3, 3] = end[:3, 3] - v * t - 0.5 * g * t * t - r @ pim.deltaPij()
+        return body, v
+
+    def bridge(self, map_id: int, stamp_ns: int) -> F64 | None:
+        """``cam_from_world`` at ``stamp_ns`` between two keyframes of map ``map_id``, from
+        the IMU alone (a frame vision could not pose): integrated forward from the keyframe
+        before and back from the one after, the positions blended linearly in time so that
+        the bias error left in either integration does not pile up at the far end. None
+        without a keyframe on both sides."""
+        chain = self.chain(map_id)
+        before = [k for k in chain if k.stamp_ns <= stamp_ns]
+        after = [k for k in chain if k.stamp_ns >= stamp_ns]
+        if not before or not after:
+            return None
+        a, b = before[-1], after[0]
+        fwd = self.predict_state(a, stamp_ns)
+        back = self.predict_back(b, stamp_ns)
+        if fwd is None or back is None:
+            return None
+        w = 0.0 if b.stamp_ns == a.stamp_ns else (stamp_ns - a.stamp_ns) / (b.stamp_ns - a.stamp_ns)
+        body = fwd[0].copy()
+        body[:3, 3] = (1.0 - w) * fwd[0][:3, 3] + w * back[0][:3, 3]
+        return inverse(body @ self.rig.body_from_camera)
+
     def predict(self, stamp_ns: int) -> F64 | None:
         """``cam_from_world`` of a frame at ``stamp_ns`` in the current map, predicted from
         its latest keyframe's state; None when the map is not initialised or the IMU does not
@@ -341,31 +390,16 @@ class Inertial(Part):
         IMU, integrating back from ``first``; the frames hanging from them are placed on the
         IMU too, and the points only they see are triangulated again from their new poses.
         Returns how many keyframes were placed."""
-        import gtsam
-
-        assert self.noise is not None
         head = [k for k in self.map.live(map_id) if k.stamp_ns < first.stamp_ns]
         if not head or not self.covers(head[0].stamp_ns, first.stamp_ns):
             return 0
-        g = np.array([0.0, 0.0, -self.noise.gravity_mps2])
         state = self.states[first.id]
-        bias = gtsam.imuBias.ConstantBias(state[6:9], state[3:6])
-        end = self.world_from_body(first)
-        r_f, p_f, v_f = end[:3, :3], end[:3, 3], state[:3]
         placed: set[int] = set()
         for k in head:
-            pim = gtsam.PreintegratedImuMeasurements(self.noise.params(), bias)
-            dt, gy, ac = self.readings(k.stamp_ns, first.stamp_ns)
-            for step, w, f in zip(dt.tolist(), gy, ac, strict=True):
-                pim.integrateMeasurement(f, w, step)
-            t = pim.deltaTij()
-            r_k = r_f @ pim.deltaRij().matrix().T
-            v_k = v_f - g * t - r_k @ pim.deltaVij()
-            p_k = p_f - v_k * t - 0.5 * g * t * t - r_k @ pim.deltaPij()
-            body = np.eye(4)
-            body[:3, :3], body[:3, 3] = r_k, p_k
-            k.cam_from_world = inverse(body @ self.rig.body_from_camera)
-            self.states[k.id] = np.concatenate([v_k, state[3:9]])
+            got = self.predict_back(first, k.stamp_ns)
+            assert got is not None
+            k.cam_from_world = inverse(got[0] @ self.rig.body_from_camera)
+            self.states[k.id] = np.concatenate([got[1], state[3:9]])
             placed.add(k.id)
         self._place_frames(placed)
         self._triangulate_again(placed)

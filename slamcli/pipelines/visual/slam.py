@@ -387,6 +387,12 @@ class VisualSlam(PipelineBase):
                 self.stats.counts["frames_in_unmerged_maps"] += 1
                 continue
             pose = rec.cam_from_kf @ smap.world_pose(kf.id)
+            if rec.state == "inertial" and main is not None:
+                # Posed on the IMU while vision failed: bridged between the final keyframes
+                # on either side of the gap.
+                bridged = self.inertial.bridge(main, rec.stamp_ns)
+                if bridged is not None:
+                    pose = bridged
             if self.config.final_pose_refinement and len(rec.pids):
                 alive = smap.alive[rec.pids] & (smap.map_id[rec.pids] == main)
                 if np.count_nonzero(alive) >= 10:
