@@ -151,7 +151,7 @@ def run_pipeline(
         metrics,
         counts,
         [run.file(name) for name in record["outputs"]],
-        list(tracked.stats.data_loss),
+        [*tracked.stats.data_loss, *result.data_loss],
         evaluation=evaluation,
         record=record,
         skipped_hint=tracked.stats.skipped_hint,
@@ -441,7 +441,7 @@ def _record(
         extra={
             "pipeline": pipe.name,
             "source": tracked.info.to_dict(),
-            "data_loss": tracked.stats.data_loss,
+            "data_loss": [*tracked.stats.data_loss, *tracked.result.data_loss],
         },
     )
 
@@ -472,8 +472,12 @@ def data_loss_error(outcome: RunOutcome) -> DataLossError | None:
             or f"'slamcli info {where} --deep' names every unreadable image",
         )
     if outcome.data_loss:
+        more = len(outcome.data_loss) - 1
         return DataLossError(
-            f"{where}: the log is damaged; the run used what could be read",
-            hint="--strict stops instead; 'mcap recover' can rebuild a damaged MCAP file",
+            f"{where}: the input is damaged; the run used what could be read: "
+            f"{outcome.data_loss[0]}" + (f" (and {more} more, in run.json)" if more else ""),
+            hint="--strict stops instead; 'mcap recover' can rebuild a damaged MCAP file"
+            if where.suffix == ".mcap"
+            else "--strict stops instead",
         )
     return None

@@ -371,6 +371,9 @@ class SlamResult:
     """(K, 10) per keyframe of a visual-inertial run: stamp (ns, as float64), the body's
     velocity (m/s, world frame), the gyroscope bias (rad/s) and the accelerometer bias (m/s²),
     written as imu_states.csv."""
+    data_loss: list[str] = field(default_factory=list)
+    """Input the pipeline had to leave out (an IMU's gaps or repeated stamps), one line each:
+    the run ends with exit code 3, as for a damaged log."""
     truth_to_estimate: NDArray[np.float64] | None = None
     """(4, 4) pose of what ``trajectory`` follows on the ground truth's body, when it is not
     the body: the ground truth is moved onto it before scoring (a monocular run follows its

@@ -358,8 +358,15 @@ def _check_settings(prior_scale: float | None, max_iterations: int, **sigmas: fl
         raise ConfigError(f"max_iterations: expected at least 1, got {max_iterations}")
 
 
+last_refusal: str = ""
+"""Why the last window was refused (for a run's record of why it never initialised)."""
+
+
 def _refuse(reason: str) -> InertialInit | None:
-    """None, the answer for a refused window, with ``reason`` logged."""
+    """None, the answer for a refused window, with ``reason`` logged and kept in
+    :data:`last_refusal`."""
+    global last_refusal
+    last_refusal = reason
     log.info("inertial initialisation refused: %s", reason)
     return None
 

@@ -20,6 +20,7 @@ IMU's prediction of a frame's pose (ORB-SLAM3's visual-inertial mode).
 from __future__ import annotations
 
 import logging
+import math
 from itertools import pairwise
 from typing import TYPE_CHECKING, Any
 
@@ -84,6 +85,9 @@ class Inertial(Part):
         self._refined: set[int] = set()
         self._first_image_ns: int | None = None
         self.attempts = 0
+        self.dropped = 0
+        self.last_refusal = ""
+        self.data_loss: list[str] = []
 
     # -- samples ------------------------------------------------------------------------------
 
@@ -98,11 +102,11 @@ class Inertial(Part):
         return int(self._t[self._n - 1]) if self._n else None
 
     def add(self, frame: ImuFrame) -> None:
-        """Keep one IMU sample.
+        """Keep one IMU sample; one whose stamp does not follow the last kept one is dropped
+        and counted (``dropped``).
 
         Raises:
-            InputError: a reading that is missing or not finite, or a stamp that does not
-                follow the previous one.
+            InputError: a reading that is missing or not finite.
         """
         if frame.gyro_radps is None or frame.accel_mps2 is None:
             raise InputError(
@@ -118,18 +122,62 @@ class Inertial(Part):
                 hint="check the IMU log ('slamcli info'), or run without it (--set imu=false)",
             )
         if self._n and frame.stamp_ns <= self._t[self._n - 1]:
-            raise InputError(
-                f"IMU sample at {frame.stamp_ns} ns does not follow the one before it "
-                f"({int(self._t[self._n - 1])} ns): duplicate or backwards stamps",
-                hint="check the IMU log ('slamcli info' lists its stamp problems), or run "
-                "without it (--set imu=false)",
-            )
+            # A duplicate or backwards stamp: the sample cannot be placed in time.
+            self.dropped += 1
+            return
         if self._n == self._t.size:
             self._t = np.concatenate([self._t, np.zeros_like(self._t)])
             self._g = np.concatenate([self._g, np.zeros_like(self._g)])
             self._a = np.concatenate([self._a, np.zeros_like(self._a)])
         self._t[self._n], self._g[self._n], self._a[self._n] = frame.stamp_ns, g, a
         self._n += 1
+
+    def check(self, report: dict[str, Any] | None, frame_s: float | None) -> None:
+        """Act on the source's IMU checks (:func:`slamcli.formats.imu_checks.check_imu`'s
+        report, as ``info`` gives it) before the run: units that are not rad/s and m/s² and
+        an IMU that misses most images refuse the run; gaps, repeated or backwards stamps and
+        saturated samples let it go on, as lost data (``data_loss``: the run ends with exit
+        code 3).
+
+        Raises:
+            InputError: the gyroscope looks like deg/s, the accelerometer is not in m/s², or
+                the IMU's clock is off the camera's (most images outside its span).
+        """
+        if not report:
+            return
+        problems: list[str] = list(report.get("problems", []))
+        fatal = [
+            p
+            for p in problems
+            if "looks like deg/s" in p or "is not in m/s^2" in p or "no usable IMU sample" in p
+        ]
+        offset = report.get("camera_offset_s")
+        images = int(report.get("images") or 0)
+        uncovered = int(report.get("uncovered_images") or 0)
+        if images and uncovered > images // 2:
+            shift = f" (shifting its stamps by {offset:.3f} s would cover them)" if offset else ""
+            fatal.append(
+                f"{report.get('where', 'the IMU')}: {uncovered} of {images} images have no IMU "
+                f"sample around them: the IMU's clock is off the camera's{shift}"
+            )
+        elif offset and frame_s and abs(offset) > frame_s:
+            fatal.append(
+                f"{report.get('where', 'the IMU')}: its stamps are offset from the camera's by "
+                f"{offset:.3f} s, more than a frame ({frame_s:.3f} s)"
+            )
+        if fatal:
+            raise InputError(
+                "; ".join(fatal),
+                hint="fix the IMU's units or stamps, or run without the IMU: --set imu=false",
+            )
+        lost_words = (
+            "gap(s) longer",
+            "repeat an earlier stamp",
+            "earlier than the sample",
+            "sticks at its extreme",
+            "in every sample",
+        )
+        self.data_loss = [p for p in problems if any(w in p for w in lost_words)]
 
     def samples(self) -> tuple[I64, F64, F64]:
         """The samples so far: stamps (ns), gyro (rad/s), accel (m/s²)."""
@@ -227,6 +275,28 @@ class Inertial(Part):
         body[:3, 3] = (1.0 - w) * fwd[0][:3, 3] + w * back[0][:3, 3]
         return inverse(body @ self.rig.body_from_camera)
 
+    def keep_gravity(self, kfs: list[Keyframe], before: F64, after: F64) -> F64:
+        """A loop's correction of an initialised map (``world_from_camera`` of ``kfs``,
+        ``before`` and ``after`` the essential graph's optimisation, (K, 4, 4)) with each
+        keyframe's rotation change kept to its part about gravity (yaw): the IMU observes
+        the map's tilt, so a loop may turn it about z and move it, 4 degrees of freedom, as
+        ORB-SLAM3's inertial loop closing. The keyframes' velocities turn with them."""
+        out = np.asarray(after, np.float64).copy()
+        for i, k in enumerate(kfs):
+            delta = out[i, :3, :3] @ before[i, :3, :3].T
+            yaw = math.atan2(delta[1, 0] - delta[0, 1], delta[0, 0] + delta[1, 1])
+            rz = np.array(
+                [
+                    [math.cos(yaw), -math.sin(yaw), 0.0],
+                    [math.sin(yaw), math.cos(yaw), 0.0],
+                    [0, 0, 1],
+                ]
+            )
+            out[i, :3, :3] = rz @ before[i, :3, :3]
+            if k.id in self.states:
+                self.states[k.id][:3] = rz @ self.states[k.id][:3]
+        return out
+
     def predict(self, stamp_ns: int) -> F64 | None:
         """``cam_from_world`` of a frame at ``stamp_ns`` in the current map, predicted from
         its latest keyframe's state; None when the map is not initialised or the IMU does not
@@ -312,6 +382,9 @@ class Inertial(Part):
         )
         self.stats.counts["imu_init_attempts"] += 1
         if init is None:
+            from slamcli.inertial import initialisation
+
+            self.last_refusal = initialisation.last_refusal
             return None
         self.inits[map_id] = init
         for k, v in zip(kfs, init.velocities, strict=True):

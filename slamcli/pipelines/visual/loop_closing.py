@@ -20,6 +20,7 @@ from slamcli.errors import InputError
 from slamcli.geometry import inverse
 from slamcli.pipelines.visual.atlas import Keyframe, SparseMap
 from slamcli.pipelines.visual.bundle import BundleAdjuster
+from slamcli.pipelines.visual.inertial import Inertial
 from slamcli.pipelines.visual.local_mapping import LocalMapping
 from slamcli.pipelines.visual.parts import Part, Shared
 from slamcli.pipelines.visual.search import in_view, project_match
@@ -43,6 +44,7 @@ class LoopClosing(Part):
         self.records: list[dict[str, Any]] = []
         self.doubts: list[str] = []
         self._consistent: list[tuple[set[int], int]] = []
+        self.inertial: Inertial | None = None
 
     def detect(self, kf: Keyframe) -> None:
         """Place recognition for a new keyframe; verified candidates close a loop (same map)
@@ -115,7 +117,13 @@ class LoopClosing(Part):
         }
         self.records.append(record)
         scale = 1.0
-        if self.rig.mono:
+        # A monocular map is metric once its IMU is initialised: its loops are rigid.
+        similarity = self.rig.mono and not (
+            self.inertial is not None
+            and self.inertial.active(kf.map_id)
+            and self.inertial.active(cand.map_id)
+        )
+        if similarity:
             found = self._loop_sim3(kf, cand, record)
             if found is None:
                 return False
@@ -145,7 +153,7 @@ class LoopClosing(Part):
             self._merge_maps(kf, cand, corrected, scale)
             # The maps are one now, kf already where the loop puts it.
             corrected, scale = kf.cam_from_world.copy(), 1.0
-        if self.rig.mono:
+        if similarity:
             self._close_loop_sim3(kf, cand, corrected, scale)
         else:
             self._close_loop(kf, cand, corrected)
@@ -485,8 +493,12 @@ class LoopClosing(Part):
         first = kfs[0].id
         world_from = np.stack([inverse(init[k.id]) for k in kfs])
         result = optimize_se3(world_from, edges, fixed=(index[first],))
+        corrected_poses = result.poses
+        if self.inertial is not None and self.inertial.active(map_id):
+            unmoved = np.stack([inverse(before.get(k.id, init[k.id])) for k in kfs])
+            corrected_poses = self.inertial.keep_gravity(kfs, unmoved, result.poses)
         for k in kfs:
-            k.cam_from_world = inverse(result.poses[index[k.id]])
+            k.cam_from_world = inverse(corrected_poses[index[k.id]])
         # Points follow the keyframe they were made in (or any that sees them).
         ids = np.flatnonzero(
             self.map.alive[: self.map.n] & (self.map.map_id[: self.map.n] == map_id)

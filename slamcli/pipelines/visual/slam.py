@@ -95,6 +95,7 @@ class VisualSlam(PipelineBase):
         # their stamp (so that the same samples are known whatever the threads).
         self._waiting: list[AnyFrame] = []
         self.loops = LoopClosing(shared, self.mapper, self.ba)
+        self.loops.inertial = self.inertial
         self._features = Prefetch(self.rig.extract, ahead=cfg.threads == 2, name="orb")
         self._frames = 0
         self._textureless = 0
@@ -154,6 +155,7 @@ class VisualSlam(PipelineBase):
                 from slamcli.inertial.preintegration import ImuNoise
 
                 assert isinstance(settings, dict)
+                self.inertial.check(info.details.get("imu_check"), _frame_interval(info))
                 self.inertial.noise = ImuNoise.from_details(settings)
                 self.rig.inertial = True
                 kinds = (*kinds, "imu")
@@ -436,6 +438,7 @@ class VisualSlam(PipelineBase):
         return {
             "initialised": main is not None and self.inertial.active(main),
             "attempts": self.inertial.attempts,
+            "last_refusal": self.inertial.last_refusal or None,
             "events": self.inertial.records,
             "final_gyro_bias": None if last is None else [round(float(x), 7) for x in last[3:6]],
             "final_accel_bias": None if last is None else [round(float(x), 6) for x in last[6:9]],
@@ -458,10 +461,14 @@ class VisualSlam(PipelineBase):
                     f"{scale}: the poses on either side of the gap are only as good as that match"
                 )
         if self.inertial.enabled and (main is None or not self.inertial.active(main)):
+            why = (
+                f"; the last refusal: {self.inertial.last_refusal}"
+                if self.inertial.last_refusal
+                else ""
+            )
             doubts.append(
-                f"the IMU was never initialised ({self.inertial.attempts} attempts refused: the "
-                "motion did not determine the scale and gravity): the trajectory is not "
-                "metric nor gravity-aligned"
+                f"the IMU was never initialised ({self.inertial.attempts} attempt(s) refused"
+                f"{why}): the trajectory is not gravity-aligned"
                 + (" and has the map's arbitrary scale" if self.rig.mono else "")
             )
         inertial_frames = counts.get("frames_inertial", 0)
@@ -518,8 +525,20 @@ class VisualSlam(PipelineBase):
             },
             counts=counts,
             imu_states=self._imu_states(main),
+            data_loss=self._imu_loss(),
             truth_to_estimate=self.rig.truth_to_trajectory,
         )
+
+    def _imu_loss(self) -> list[str]:
+        """The IMU data the run could not use: what the source's checks found lost, and the
+        samples dropped for stamps that did not follow the one before."""
+        lines = list(self.inertial.data_loss)
+        if self.inertial.dropped:
+            lines.append(
+                f"{self.inertial.dropped} IMU sample(s) dropped: their stamps repeat or go back "
+                "on the sample before"
+            )
+        return lines
 
     def _imu_states(self, main: int | None) -> F64 | None:
         """(K, 10) stamp, velocity and biases per keyframe of the main map, once its IMU is
@@ -528,3 +547,11 @@ class VisualSlam(PipelineBase):
         if not rows:
             return None
         return np.array([[r["stamp_ns"], *r["state"]] for r in rows], dtype=np.float64)
+
+
+def _frame_interval(info: SourceInfo) -> float | None:
+    """The mean interval between the images of ``info``'s camera stream, seconds."""
+    for s in info.streams:
+        if s.kind in ("image", "stereo", "rgbd") and s.rate_hz:
+            return 1.0 / float(s.rate_hz)
+    return None

@@ -1,0 +1,116 @@
+"""Bad IMU data in a visual-inertial run, on copies of the MH_05 excerpt: units and clocks that
+would give a wrong map refuse the run (exit 1) naming the stream and what to do; gaps,
+repeated stamps and saturated samples let it finish on what is left, as lost data (exit 3,
+listed in run.json); a camera-IMU transform that is missing or not a rotation is refused."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import shared_path
+from typer.testing import CliRunner
+
+from slamcli.cli.app import app
+
+runner = CliRunner()
+IMU_CSV = Path("mav0", "imu0", "data.csv")
+CAM_YAML = Path("mav0", "cam0", "sensor.yaml")
+
+
+def _copy(tmp_path: Path) -> Path:
+    """A copy of MH_05 whose IMU and sensor files may be edited (the images linked)."""
+    src = shared_path("vi", "euroc_MH05_a")
+    dest = tmp_path / "mh05"
+    shutil.copytree(src, dest, ignore=shutil.ignore_patterns("*.png"))
+    for png in (src / "mav0" / "cam0" / "data").iterdir():
+        (dest / "mav0" / "cam0" / "data" / png.name).symlink_to(png)
+    return dest
+
+
+def _imu(folder: Path) -> tuple[list[str], np.ndarray]:
+    lines = (folder / IMU_CSV).read_text().splitlines()
+    header = [line for line in lines if line.startswith("#")]
+    rows = np.array([[float(x) for x in line.split(",")] for line in lines if line[:1].isdigit()])
+    return header, rows
+
+
+def _write_imu(folder: Path, header: list[str], rows: np.ndarray) -> None:
+    body = [",".join([str(int(r[0])), *(f"{v:.12g}" for v in r[1:])]) for r in rows]
+    (folder / IMU_CSV).write_text("\n".join([*header, *body]) + "\n")
+
+
+def _run(folder: Path, tmp_path: Path) -> object:
+    return runner.invoke(app, ["run", "visual", str(folder), "--out", str(tmp_path / "run")])
+
+
+def _record(tmp_path: Path) -> dict:
+    return json.loads((tmp_path / "run" / "run.json").read_text())
+
+
+def test_gyro_in_degrees_per_second_is_refused(tmp_path: Path) -> None:
+    folder = _copy(tmp_path)
+    header, rows = _imu(folder)
+    rows[:, 1:4] = np.degrees(rows[:, 1:4])
+    _write_imu(folder, header, rows)
+    res = _run(folder, tmp_path)
+    assert res.exit_code == 1, res.output
+    assert "deg/s" in res.output and "imu=false" in res.output
+    assert not (tmp_path / "run").exists()
+
+
+def test_imu_clock_off_the_camera_is_refused(tmp_path: Path) -> None:
+    """The IMU's stamps 5 s late: no image has IMU samples around it."""
+    folder = _copy(tmp_path)
+    header, rows = _imu(folder)
+    rows[:, 0] += 5e9
+    _write_imu(folder, header, rows)
+    res = _run(folder, tmp_path)
+    assert res.exit_code == 1, res.output
+    assert "clock" in res.output and "imu0/data.csv" in res.output
+
+
+@pytest.mark.parametrize("damage", ["duplicates", "gap", "saturated"])
+def test_lost_imu_data_finishes_with_exit_3(tmp_path: Path, damage: str) -> None:
+    """The run uses what is left, says what was lost, and exits 3."""
+    folder = _copy(tmp_path)
+    header, rows = _imu(folder)
+    middle = len(rows) // 2
+    if damage == "duplicates":
+        rows = np.concatenate([rows[:middle], rows[middle - 10 : middle], rows[middle:]])
+    elif damage == "gap":
+        rows = np.concatenate([rows[:middle], rows[middle + 30 :]])  # 0.15 s without samples
+    else:
+        top = np.percentile(rows[:, 1], 95)
+        rows[:, 1] = np.minimum(rows[:, 1], top)  # the gyroscope's x clipped at its range
+    _write_imu(folder, header, rows)
+    res = _run(folder, tmp_path)
+    assert res.exit_code == 3, res.output
+    assert "the input is damaged" in res.output
+    lost = _record(tmp_path)["data_loss"]
+    word = {"duplicates": "repeat", "gap": "gap", "saturated": "extreme"}[damage]
+    assert any(word in line for line in lost), lost
+    # The run itself went through, metric.
+    assert _record(tmp_path)["metrics"]["inertial"]["initialised"]
+
+
+@pytest.mark.parametrize("damage", ["missing", "not a rotation"])
+def test_bad_camera_imu_transform_is_refused(tmp_path: Path, damage: str) -> None:
+    folder = _copy(tmp_path)
+    text = (folder / CAM_YAML).read_text()
+    if damage == "missing":
+        start = text.index("T_BS:")
+        end = text.index("]", start) + 1
+        text = text[:start] + text[end:]
+    else:
+        # The rotation's first entry doubled: no longer a rotation.
+        head, _, tail = text.partition("data: [")
+        first, _, rest = tail.partition(",")
+        text = head + "data: [" + repr(2.0 * float(first)) + "," + rest
+    (folder / CAM_YAML).write_text(text)
+    res = _run(folder, tmp_path)
+    assert res.exit_code == 1, res.output
+    assert "T_BS" in res.output and "sensor.yaml" in res.output
