@@ -16,6 +16,7 @@ from slamcli.formats import open_source, sniff
 from slamcli.formats.euroc import (
     EurocSource,
     read_camera_sensor,
+    read_imu_csv,
     read_imu_sensor,
     rectify_stereo,
 )
@@ -222,11 +223,21 @@ def test_imu_frames_keep_the_csv_columns(source: EurocSource) -> None:
     assert np.linalg.norm(first.accel_mps2) == pytest.approx(9.81, abs=0.2)
 
 
+def excerpt_imu_csv(source: EurocSource) -> Path:
+    return source.mav / "imu0" / "data.csv"
+
+
 def test_stereo_and_imu_interleave_by_stamp(source: EurocSource) -> None:
     frames = list(source.frames(("stereo", "imu")))
     kinds = ["stereo" if isinstance(f, StereoFrame) else "imu" for f in frames]
     stamps = np.array([f.stamp_ns for f in frames])
-    assert kinds.count("stereo") == 95 and kinds.count("imu") == 29120
+    # The excerpt's imu0/data.csv covers the whole sequence (29120 samples, 145 s): with the
+    # images, the samples over their span and a second after the last are read.
+    imu_t = stamps[[k == "imu" for k in kinds]]
+    all_t = read_imu_csv(excerpt_imu_csv(source))[0]
+    span = (all_t >= FIRST_STAMP) & (all_t <= LAST_PAIR_STAMP + 1_000_000_000)
+    assert kinds.count("stereo") == 95 and kinds.count("imu") == int(span.sum()) == 1141
+    np.testing.assert_array_equal(imu_t, all_t[span])
     assert np.all(np.diff(stamps) >= 0)
     # The first image and the first IMU sample share a stamp: the IMU sample comes first.
     assert kinds[:2] == ["imu", "stereo"] and stamps[0] == stamps[1] == FIRST_STAMP

@@ -83,6 +83,9 @@ FRAME_KINDS = ("stereo", "image", "imu")
 """The frame kinds an ASL folder provides (one with ``cam0`` alone: ``image`` and ``imu``)."""
 
 MONO_FRAME_KINDS = ("image", "imu")
+IMU_MARGIN_S = 1.0
+"""IMU samples further than this before the first image or after the last are not read with
+the images (a visual-inertial run needs none of them)."""
 """The frame kinds of an ASL folder with ``cam0`` alone."""
 
 PAIR_MAX_DT_S = 0.001
@@ -448,9 +451,16 @@ class EurocSource(SourceBase):
             if "image" in wanted
             else np.zeros(0, dtype=np.int64)
         )
+        imu_rows = np.arange(imu_t.size, dtype=np.int64)
+        if imu_t.size and pair_t.size:
+            # With images, the IMU is read over their span and IMU_MARGIN_S either side (an
+            # excerpt's images may cover seconds of a sequence's whole IMU log).
+            margin = round(IMU_MARGIN_S * 1e9)
+            keep = (imu_t >= pair_t.min() - margin) & (imu_t <= pair_t.max() + margin)
+            imu_rows, imu_t = imu_rows[keep], imu_t[keep]
         t = np.concatenate([imu_t, pair_t])
         code = np.concatenate([np.zeros(imu_t.size, np.int64), np.ones(pair_t.size, np.int64)])
-        idx = np.concatenate([np.arange(imu_t.size), np.arange(pair_t.size)]).astype(np.int64)
+        idx = np.concatenate([imu_rows, np.arange(pair_t.size)]).astype(np.int64)
         for c, k in zip(
             *(a[np.lexsort((idx, code, t))].tolist() for a in (code, idx)), strict=True
         ):

@@ -56,6 +56,9 @@ on average. Before the IMU holds it, a map made by one camera drifts in scale ov
 the bundle adjustment with inertial terms that follows corrects that drift, while a window
 that fits far worse still (a wrong calibration, clock offset, or a broken map) is
 refused."""
+WINDOW_SPANS = 5
+"""An initialisation window spans at most this many times ``imu_init_s``: gentle motion needs
+seconds more than ``imu_init_s`` to determine the scale, and a longer window costs little."""
 GYRO_BIAS_BOUND = 0.1
 """rad/s: the largest gyroscope bias assumed before it is estimated (EuRoC's MEMS IMU starts
 MH_05 at 0.077 rad/s about z)."""
@@ -437,14 +440,14 @@ class Inertial(Part):
     def window(self, map_id: int) -> list[Keyframe]:
         """The keyframes an initialisation of map ``map_id`` is tried on: the latest ones
         whose rotations, keyframe to keyframe, agree with the gyroscope (:meth:`agrees`),
-        spanning at most twice ``imu_init_s``; empty while they span less than
+        spanning at most :data:`WINDOW_SPANS` times ``imu_init_s``; empty while they span less than
         ``imu_init_s``. A monocular map started close to a surface can go wrong in its first
         keyframes (a scale that collapses as the far scene comes into view, rotations
         traded for translations): it is initialised on the keyframes after them, and
         :meth:`place_head` places the first ones on the IMU."""
         kfs = self.map.live(map_id)
         newest = kfs[-1].stamp_ns if kfs else 0
-        span_ns = round(2 * self.config.imu_init_s * 1e9)
+        span_ns = round(WINDOW_SPANS * self.config.imu_init_s * 1e9)
         start = len(kfs) - 1
         while start > 0 and newest - kfs[start - 1].stamp_ns <= span_ns:
             a, b = kfs[start - 1], kfs[start]
