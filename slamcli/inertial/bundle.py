@@ -50,6 +50,10 @@ logger = logging.getLogger(__name__)
 
 HELD_SIGMA = 1e-6
 """Standard deviation of the priors that hold a keyframe's pose, velocity and bias."""
+RELATIVE_ERROR_TOL = 1e-4
+"""Levenberg-Marquardt stops when an iteration lowers the cost by less than this share
+(GTSAM's default, 1e-5, spends a third more time on V1_01's windows to move poses by less
+than 0.07 mm)."""
 ANCHOR_ACCEL_BIAS_SIGMA = 0.01
 """m/s²: how loosely an anchored keyframe's accelerometer bias is tied to its estimate."""
 ANCHOR_ROTATION_SIGMA = 0.1
@@ -236,6 +240,7 @@ def inertial_bundle_adjust(
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(int(max_iterations))
     lm.setlambdaUpperBound(1e10)
+    lm.setRelativeErrorTol(RELATIVE_ERROR_TOL)
     initial_error = graph.error(values)
     optimiser = gtsam.LevenbergMarquardtOptimizer(graph, values, lm)
     try:
