@@ -8,9 +8,8 @@ all or nothing (:class:`~slamcli.rundir.RunDir`).
 
 from __future__ import annotations
 
-import itertools
 import logging
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from contextlib import nullcontext
 from dataclasses import asdict, dataclass, field, is_dataclass
 from pathlib import Path
@@ -185,7 +184,7 @@ def _track(
             # info's count is an estimate for some formats (MCAP pairs by log time there): it
             # sizes the progress bar but never limits the run.
             total = info.frames if max_frames is None else min(info.frames, max_frames)
-            items = itertools.islice(source.frames(kinds), max_frames)
+            items = _first_frames(source.frames(kinds), max_frames)
             with timings.stage("track"):
                 frames = _feed(pipe, items, total, progress)
             # The input's hash (for run.json) is read beside the pipeline's last steps when
@@ -208,6 +207,23 @@ def _track(
         raise
     input_hash = digest.result() if digest is not None else hash_input(input_path)
     return _Tracked(info, result, frames, stats, truth, input_hash)
+
+
+def _first_frames(items: Iterator[Any], limit: int | None) -> Iterator[Any]:
+    """``items`` up to its ``limit``-th frame (all without a limit); IMU samples come between
+    the frames and are not counted. Nothing after the last frame is read."""
+    if limit is None:
+        yield from items
+        return
+    if limit <= 0:
+        return
+    counted = 0
+    for item in items:
+        yield item
+        if not isinstance(item, ImuFrame):
+            counted += 1
+            if counted >= limit:
+                return
 
 
 def _reference(options: dict[str, Any]) -> Trajectory | None:
