@@ -79,8 +79,17 @@ _COUNTS: dict[str, set[str]] = {
         "front_end_map_points",
     },
     "visual": {
-        *(f"frames_{s}" for s in ("tracked", "relocalised", "lost", "initialising", "new_map")),
+        *(
+            f"frames_{s}"
+            for s in ("tracked", "relocalised", "inertial", "lost", "initialising", "new_map")
+        ),
         "frames_in_unmerged_maps",
+        "imu_init_attempts",
+        "imu_placed_keyframes",
+        "local_inertial_ba",
+        "init_rejected_gyro",
+        "init_homography",
+        "init_essential",
         "ba_outliers_removed",
         "essential_graph_optimisations",
         "global_ba",
@@ -143,6 +152,11 @@ _METRICS: dict[str, set[str]] = {
     "ekf": {f"nis.{k}" for k in ("mean", "median", "dof", "fraction_in_band")},
     "lidar": _stats(*(f"rpe.{d}.{k}" for d in ("1s", "10s") for k in ("trans", "rot_deg")))
     | {"rpe.1s.pairs", "rpe.10s.pairs"},
+    "visual": {
+        "initialisation.points",
+        "initialisation.median_parallax_deg",
+        "inertial.attempts",
+    },
 }
 """Each pipeline's own numeric metrics besides accuracy and timing."""
 
