@@ -235,11 +235,10 @@ def test_euroc_through_a_converted_mcap_poses_every_pair(
     assert outcome.result.metrics["mode"] == "stereo"
     assert len(outcome.result.trajectory) == 95
     assert outcome.metrics["evaluation"]["ate"]["rmse"] < 0.005
-    # The log holds the raw images and their calibration: the same poses as the folder's
-    # visual run (the folder's IMU makes its default run visual-inertial, in a gravity-aligned
-    # world; the log's IMU has no noise settings, so the log's run is visual).
-    assert outcome.result.metrics.get("inertial") is None
-    visual = run_pipeline(folder, "visual", tmp_path / "visual", config=VisualConfig(imu=False))
+    # The log holds the raw images, their calibration, the IMU with its noise model (the
+    # channel's metadata) and its mounting (tf): the same visual-inertial run as the folder's.
+    assert outcome.result.metrics["inertial"]["initialised"]
+    assert euroc_run.result.metrics["inertial"]["initialised"]
     ours = outcome.result.trajectory.world_from_body[:, :3, 3]
-    theirs = visual.result.trajectory.world_from_body[:, :3, 3]
+    theirs = euroc_run.result.trajectory.world_from_body[:, :3, 3]
     assert np.max(np.linalg.norm(ours - theirs, axis=1)) < 0.003

@@ -616,6 +616,10 @@ class McapSource(SourceBase):
             problems.extend(scan_problems)
         except InputError as exc:
             problems.append(f"scans: {exc.msg}")
+        try:
+            details.update(self._imu_settings(details.get("body_frame")))
+        except InputError as exc:
+            problems.append(f"imu: {exc.msg}")
         if deep:
             try:
                 imu_details, imu_problems = self._imu_info()
@@ -663,6 +667,40 @@ class McapSource(SourceBase):
             problems=problems,
             details=details,
         )
+
+    def _imu_settings(self, body_frame: str | None) -> dict[str, Any]:
+        """The IMU's noise model and mounting, for a visual-inertial run: ``{"imu": {...}}``
+        (the keys of :meth:`slamcli.formats.euroc.ImuSensor.noise`, ``rate_hz`` and
+        ``body_from_imu``) when the IMU channel's metadata holds its noise model (as slamcli's
+        stereo logs write it: ``sensor_msgs/Imu`` has no field for it) and ``/tf_static``
+        places its frame on the stereo rig's body; else nothing (the run is visual).
+
+        Raises:
+            InputError: the metadata names a frame tf cannot place on the body.
+        """
+        from slamcli.formats.mcap.mounting import TfIndex
+        from slamcli.formats.mcap.write.stereo import IMU_NOISE_KEYS
+
+        topic = self.topic("imu", required=False)
+        if topic is None or not body_frame:
+            return {}
+        meta = dict(self._channels[topic].metadata)
+        if not all(key in meta for key in IMU_NOISE_KEYS):
+            return {}
+        try:
+            settings: dict[str, Any] = {key: float(meta[key]) for key in IMU_NOISE_KEYS}
+            settings["rate_hz"] = float(meta.get("rate_hz", "200"))
+        except ValueError as exc:
+            raise InputError(
+                f"{topic}: the channel's noise metadata is not a number ({exc})"
+            ) from None
+        frame = meta.get("frame_id", "")
+        if frame and frame != body_frame:
+            index = TfIndex.read(rec for _, rec in self._records(self._topics_of(TF_SCHEMAS)))
+            firsts = [e.first_ns for e in index.buffer.edges() if e.first_ns is not None]
+            stamp = min(firsts) if firsts else 0
+            settings["body_from_imu"] = index.buffer.lookup(body_frame, frame, stamp).tolist()
+        return {"imu": settings}
 
     def _imu_info(self) -> tuple[dict[str, Any], list[str]]:
         """The IMU topic's checks (:func:`~slamcli.formats.imu_checks.check_imu`: header

@@ -94,6 +94,8 @@ class LogWriter:
         self._pending: list[tuple[int, int, int, int, bytes]] = []
         self._order = 0
         self.counts: dict[str, int] = {}
+        # Channel metadata by topic, given before the topic's first message.
+        self.channel_metadata: dict[str, dict[str, str]] = {}
 
     def add(
         self,
@@ -116,7 +118,9 @@ class LogWriter:
             if schema_id is None:
                 schema_id = self._writer.register_schema(name, encoding, definition)
                 self._schemas[name] = schema_id
-            channel = self._writer.register_channel(topic, message_encoding, schema_id)
+            channel = self._writer.register_channel(
+                topic, message_encoding, schema_id, self.channel_metadata.get(topic, {})
+            )
             self._channels[topic] = channel
             self._schema_of[topic] = name
             self.counts[topic] = 0

@@ -271,6 +271,10 @@ def write_stereo_mcap(
     pairs = 0
     with open_log(out, "ros2", force) as mcap_log:
         writer = _StereoRos2Writer(mcap_log)
+        if isinstance(source, EurocSource) and source.imu_sensor is not None:
+            mcap_log.channel_metadata[TOPIC_STEREO_IMU] = imu_metadata(
+                source.imu_sensor.rate_hz, source.imu_sensor.noise(), STEREO_IMU_FRAME
+            )
         writer.static_transforms(min(starts), mounts)
         if truth is not None:
             for stamp, pose in zip(truth.stamps_ns.tolist(), truth.world_from_body, strict=True):
@@ -314,6 +318,23 @@ def _pairs(source: StereoFolder) -> Iterator[tuple[int, int, NDArray[np.uint8], 
         raw = source.raw_pair(k)
         if raw is not None:
             yield left_ns[k], right_ns[k], raw[0], raw[1]
+
+
+IMU_NOISE_KEYS = (
+    "gyroscope_noise_density",
+    "gyroscope_random_walk",
+    "accelerometer_noise_density",
+    "accelerometer_random_walk",
+)
+"""The IMU channel's metadata keys that carry its noise model (ASL's names and units), which
+``sensor_msgs/Imu`` has no field for."""
+
+
+def imu_metadata(rate_hz: float, noise: dict[str, float], frame_id: str) -> dict[str, str]:
+    """The IMU channel's metadata: its noise model (:data:`IMU_NOISE_KEYS`), nominal rate and
+    frame (whose pose on the body ``/tf_static`` gives), as strings (MCAP's metadata type)."""
+    out = {key: repr(float(noise[key])) for key in IMU_NOISE_KEYS}
+    return out | {"rate_hz": repr(float(rate_hz)), "frame_id": frame_id}
 
 
 def _imu_window(source: StereoFolder, stamps: NDArray[np.int64]) -> list[ImuFrame]:
