@@ -102,22 +102,29 @@ class Tracking(Part):
                 pose = self._track_motion(cur)
             if pose is None and self.lost_run == 0 and not self.rig.mono:
                 pose = self._track_reference(cur)
+        located = self._local_map_from(cur, pose, state)
+        if located is None:
+            self.lost_run += 1
+            self.last = None
+        return located
+
+    def _local_map_from(
+        self, cur: Frame, pose: F64 | None, state: str, wide: bool = False
+    ) -> str | None:
+        """From ``pose`` (relocalised first when None), the local map's search and
+        refinement: ``state`` (``relocalised`` after a relocalisation), or None when either
+        fails. ``wide`` as :meth:`_track_local_map`'s."""
         if pose is None:
             with self.stats.timed("relocalise"):
                 pose = self._relocalise(cur)
             state = "relocalised"
             self._since_reloc = 0
-        if pose is not None:
-            cur.cam_from_world = pose
-            with self.stats.timed("local_map"):
-                ok = self._track_local_map(cur)
-            if not ok:
-                pose = None
         if pose is None:
-            self.lost_run += 1
-            self.last = None
             return None
-        return state
+        cur.cam_from_world = pose
+        with self.stats.timed("local_map"):
+            ok = self._track_local_map(cur, wide=wide)
+        return state if ok else None
 
     def _locate_inertial(self, cur: Frame) -> str | None:
         """Pose ``cur`` in an initialised visual-inertial map: the IMU predicts the pose, the
@@ -139,16 +146,9 @@ class Tracking(Part):
             # is searched around the prediction.
             pose = predicted
             cur.point_ids[:] = -1
-        if pose is None:
-            with self.stats.timed("relocalise"):
-                pose = self._relocalise(cur)
-            state = "relocalised"
-            self._since_reloc = 0
-        if pose is not None:
-            cur.cam_from_world = pose
-            with self.stats.timed("local_map"):
-                if self._track_local_map(cur, wide=self.lost_run > 0):
-                    return state
+        located = self._local_map_from(cur, pose, state, wide=self.lost_run > 0)
+        if located is not None:
+            return located
         self.last = None
         blind_s = (cur.stamp_ns - self._seen_ns) * 1e-9
         if predicted is not None and blind_s <= self.config.imu_max_blind_s:
