@@ -1,6 +1,6 @@
 # make demo         - set everything up and run the demo on the bundled sample data
 # make test         - set everything up and run the test suite (it prints the 15 slowest tests)
-# make test-robust  - each accuracy test again on perturbed inputs and seeds 0-4, mono 0-9 (22 CPU-minutes)
+# make test-robust  - each accuracy test again on perturbed inputs and seeds 0-4, mono 0-9 (34 CPU-minutes)
 # make constraints  - re-resolve the newest releases pyproject.toml allows into constraints.txt
 # make fuzz         - run FUZZ_CASES seeded damaged inputs through the commands (minutes)
 # make vocabulary   - retrain the shipped ORB vocabulary slamcli/data/orb_vocabulary.npz (~20 min)
