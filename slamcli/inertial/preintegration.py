@@ -30,6 +30,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slamcli.errors import InputError
+from slamcli.formats.euroc.calibration import IMU_NOISE_KEYS
 
 if TYPE_CHECKING:
     import gtsam
@@ -84,15 +85,17 @@ class ImuNoise:
         )
 
     @classmethod
+    def has_settings(cls, details: object) -> bool:
+        """Whether ``details`` (a source's ``info().details["imu"]``) holds a noise model."""
+        return isinstance(details, dict) and all(key in details for key in IMU_NOISE_KEYS)
+
+    @classmethod
     def from_details(cls, details: dict[str, Any]) -> ImuNoise:
         """The noise model a source's ``info`` gives as ``details["imu"]``: the ASL names of
         :meth:`slamcli.formats.euroc.ImuSensor.noise`, ``rate_hz`` and, when the IMU is not
         the body, ``body_from_imu`` (4 rows of 4)."""
         return cls(
-            gyro_noise_density=float(details["gyroscope_noise_density"]),
-            gyro_random_walk=float(details["gyroscope_random_walk"]),
-            accel_noise_density=float(details["accelerometer_noise_density"]),
-            accel_random_walk=float(details["accelerometer_random_walk"]),
+            *(float(details[key]) for key in IMU_NOISE_KEYS),
             rate_hz=float(details.get("rate_hz", 200.0)),
             body_from_imu=np.asarray(details.get("body_from_imu", np.eye(4)), dtype=np.float64),
         )

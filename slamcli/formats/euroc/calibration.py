@@ -95,6 +95,17 @@ class CameraSensor:
     body_from_sensor: F64
 
 
+IMU_NOISE_KEYS = (
+    "gyroscope_noise_density",
+    "gyroscope_random_walk",
+    "accelerometer_noise_density",
+    "accelerometer_random_walk",
+)
+"""An IMU's noise model by ASL's names and units (``sensor.yaml``): what a visual-inertial run
+needs besides the samples, wherever the IMU comes from (an ASL folder, an MCAP channel's
+metadata)."""
+
+
 @dataclass(frozen=True)
 class ImuSensor:
     """The IMU of an ASL folder: ``T_BS``, the nominal rate and the noise model.
@@ -119,12 +130,7 @@ class ImuSensor:
 
     def noise(self) -> dict[str, float]:
         """The noise settings by their ASL names (for ``info``)."""
-        return {
-            "gyroscope_noise_density": self.gyroscope_noise_density,
-            "gyroscope_random_walk": self.gyroscope_random_walk,
-            "accelerometer_noise_density": self.accelerometer_noise_density,
-            "accelerometer_random_walk": self.accelerometer_random_walk,
-        }
+        return {key: float(getattr(self, key)) for key in IMU_NOISE_KEYS}
 
 
 @dataclass(frozen=True)

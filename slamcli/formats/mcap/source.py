@@ -678,8 +678,8 @@ class McapSource(SourceBase):
         Raises:
             InputError: the metadata names a frame tf cannot place on the body.
         """
+        from slamcli.formats.euroc.calibration import IMU_NOISE_KEYS
         from slamcli.formats.mcap.mounting import TfIndex
-        from slamcli.formats.mcap.write.stereo import IMU_NOISE_KEYS
 
         topic = self.topic("imu", required=False)
         if topic is None or not body_frame:

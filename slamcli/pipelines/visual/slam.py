@@ -141,24 +141,21 @@ class VisualSlam(PipelineBase):
         self.rig.mono = mode == "mono"
         self.rig.stereo = mode == "stereo"
         kinds = {"mono": ("image",), "stereo": ("stereo",), "rgbd": ("rgbd",)}[mode]
-        settings = info.details.get("imu")
         has_imu = any(s.kind == "imu" and s.count > 0 for s in info.streams)
-        noise_known = isinstance(settings, dict) and "gyroscope_noise_density" in settings
-        if self.config.imu and has_imu and mode != "rgbd":
-            if not noise_known:
-                # An accelerometer alone (TUM's), or an IMU whose noise is not given.
-                log.info(
-                    "%s: the IMU's noise settings are unknown: the run is visual only",
-                    info.path,
-                )
-            else:
-                from slamcli.inertial.preintegration import ImuNoise
+        if not (self.config.imu and has_imu and mode != "rgbd"):
+            return kinds
+        from slamcli.inertial.preintegration import ImuNoise
 
-                assert isinstance(settings, dict)
-                self.inertial.check(info.details.get("imu_check"), _frame_interval(info))
-                self.inertial.noise = ImuNoise.from_details(settings)
-                self.rig.inertial = True
-                kinds = (*kinds, "imu")
+        settings = info.details.get("imu")
+        if not ImuNoise.has_settings(settings):
+            # An accelerometer alone (TUM's), or an IMU whose noise is not given.
+            log.info("%s: the IMU's noise settings are unknown: the run is visual only", info.path)
+            return kinds
+        assert isinstance(settings, dict)
+        self.inertial.check(info.details.get("imu_check"), _frame_interval(info))
+        self.inertial.noise = ImuNoise.from_details(settings)
+        self.rig.inertial = True
+        kinds = (*kinds, "imu")
         return kinds
 
     def process(self, frame: AnyFrame | ImuFrame) -> None:

@@ -320,19 +320,13 @@ def _pairs(source: StereoFolder) -> Iterator[tuple[int, int, NDArray[np.uint8], 
             yield left_ns[k], right_ns[k], raw[0], raw[1]
 
 
-IMU_NOISE_KEYS = (
-    "gyroscope_noise_density",
-    "gyroscope_random_walk",
-    "accelerometer_noise_density",
-    "accelerometer_random_walk",
-)
-"""The IMU channel's metadata keys that carry its noise model (ASL's names and units), which
-``sensor_msgs/Imu`` has no field for."""
-
-
 def imu_metadata(rate_hz: float, noise: dict[str, float], frame_id: str) -> dict[str, str]:
-    """The IMU channel's metadata: its noise model (:data:`IMU_NOISE_KEYS`), nominal rate and
-    frame (whose pose on the body ``/tf_static`` gives), as strings (MCAP's metadata type)."""
+    """The IMU channel's metadata: its noise model
+    (:data:`~slamcli.formats.euroc.calibration.IMU_NOISE_KEYS`; ``sensor_msgs/Imu`` has no
+    field for it), nominal rate and frame (whose pose on the body ``/tf_static`` gives), as
+    strings (MCAP's metadata type)."""
+    from slamcli.formats.euroc.calibration import IMU_NOISE_KEYS
+
     out = {key: repr(float(noise[key])) for key in IMU_NOISE_KEYS}
     return out | {"rate_hz": repr(float(rate_hz)), "frame_id": frame_id}
 
