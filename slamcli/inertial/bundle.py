@@ -36,7 +36,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from slamcli.geometry import inverse
-from slamcli.inertial.preintegration import ImuNoise
+from slamcli.inertial.preintegration import ImuNoise, bias_of, integrate
 from slamcli.types import PinholeCamera
 
 F64 = NDArray[np.float64]
@@ -206,7 +206,7 @@ def inertial_bundle_adjust(
     hold3 = gtsam.noiseModel.Isotropic.Sigma(3, HELD_SIGMA)
     for c, i in enumerate(chain):
         values.insert(V(i), inertial.velocities[c])
-        bias = gtsam.imuBias.ConstantBias(inertial.biases[c, 3:], inertial.biases[c, :3])
+        bias = bias_of(inertial.biases[c])
         values.insert(B(i), bias)
         if c < inertial.held:
             graph.add(gtsam.PriorFactorVector(V(i), inertial.velocities[c], hold3))
@@ -225,17 +225,15 @@ def inertial_bundle_adjust(
                 X(i), gtsam.Pose3(world_from_body[i]), gtsam.noiseModel.Diagonal.Sigmas(sigmas)
             )
         )
-        bias = gtsam.imuBias.ConstantBias(inertial.biases[0, 3:], inertial.biases[0, :3])
+        bias = bias_of(inertial.biases[0])
         bias_sigmas = np.array([ANCHOR_ACCEL_BIAS_SIGMA] * 3 + [GYRO_BIAS_SIGMA] * 3)
         graph.add(
             gtsam.PriorFactorConstantBias(B(i), bias, gtsam.noiseModel.Diagonal.Sigmas(bias_sigmas))
         )
-    for c, (dt, gyro, accel) in enumerate(inertial.intervals):
+    for c, readings in enumerate(inertial.intervals):
         i, j = chain[c], chain[c + 1]
-        bias = gtsam.imuBias.ConstantBias(inertial.biases[c, 3:], inertial.biases[c, :3])
-        pim = gtsam.PreintegratedCombinedMeasurements(params, bias)
-        for step, w, a in zip(dt.tolist(), gyro, accel, strict=True):
-            pim.integrateMeasurement(a, w, step)
+        pim = gtsam.PreintegratedCombinedMeasurements(params, bias_of(inertial.biases[c]))
+        integrate(pim, readings)
         graph.add(gtsam.CombinedImuFactor(X(i), V(i), X(j), V(j), B(i), B(j), pim))
     lm = gtsam.LevenbergMarquardtParams()
     lm.setMaxIterations(int(max_iterations))
@@ -263,11 +261,17 @@ def inertial_bundle_adjust(
         velocities[c] = out.atVector(V(i))
         b = out.atConstantBias(B(i))
         biases[c] = np.concatenate([b.gyroscope(), b.accelerometer()])
-    chi2 = _chi2(camera, new_cfw, new_points, obs_frame, obs_point, obs_uv, obs_sigma_px)
-    chi2_depth = _chi2_right(
-        camera, baseline_m, new_cfw, new_points, obs_frame, obs_point, right_u, obs_sigma_px
+    chi2 = _chi2(
+        camera,
+        baseline_m,
+        new_cfw,
+        new_points,
+        obs_frame,
+        obs_point,
+        obs_uv,
+        obs_sigma_px,
+        np.where(has_depth, right_u, np.nan),
     )
-    chi2 = np.where(has_depth, chi2 + chi2_depth, chi2)
     inlier = np.isfinite(chi2) & (chi2 < np.where(has_depth, CHI2_STEREO, CHI2_MONO))
     final_error = float(graph.error(out))
     logger.debug(
@@ -295,47 +299,29 @@ def inertial_bundle_adjust(
     )
 
 
-def _in_camera(cam_from_world: F64, points: F64, obs_frame: I64, obs_point: I64) -> F64:
-    """(M, 3) each observed point in its observing camera's frame."""
-    pose = cam_from_world[obs_frame]
-    return np.einsum("mij,mj->mi", pose[:, :3, :3], points[obs_point]) + pose[:, :3, 3]
-
-
 def _chi2(
-    camera: PinholeCamera,
-    cam_from_world: F64,
-    points: F64,
-    obs_frame: I64,
-    obs_point: I64,
-    obs_uv: F64,
-    sigma: F64,
-) -> F64:
-    """Squared whitened reprojection error of each observation; inf behind the camera."""
-    pc = _in_camera(cam_from_world, points, obs_frame, obs_point)
-    z = pc[:, 2]
-    front = z > 1e-9
-    zs = np.where(front, z, 1.0)
-    u = camera.fx * pc[:, 0] / zs + camera.cx
-    v = camera.fy * pc[:, 1] / zs + camera.cy
-    e = ((u - obs_uv[:, 0]) ** 2 + (v - obs_uv[:, 1]) ** 2) / sigma**2
-    return np.where(front, e, np.inf)
-
-
-def _chi2_right(
     camera: PinholeCamera,
     baseline_m: float,
     cam_from_world: F64,
     points: F64,
     obs_frame: I64,
     obs_point: I64,
-    right_u: F64,
+    obs_uv: F64,
     sigma: F64,
+    right_u: F64,
 ) -> F64:
-    """Squared whitened error of the virtual right coordinate."""
-    pc = _in_camera(cam_from_world, points, obs_frame, obs_point)
-    z = np.where(pc[:, 2] > 1e-9, pc[:, 2], 1.0)
+    """Squared whitened reprojection error of each observation, with the virtual right
+    coordinate's where ``right_u`` is finite; inf behind the camera."""
+    pose = cam_from_world[obs_frame]
+    pc = np.einsum("mij,mj->mi", pose[:, :3, :3], points[obs_point]) + pose[:, :3, 3]
+    front = pc[:, 2] > 1e-9
+    z = np.where(front, pc[:, 2], 1.0)
+    u = camera.fx * pc[:, 0] / z + camera.cx
+    v = camera.fy * pc[:, 1] / z + camera.cy
+    e = (u - obs_uv[:, 0]) ** 2 + (v - obs_uv[:, 1]) ** 2
     ur = camera.fx * (pc[:, 0] - baseline_m) / z + camera.cx
-    return ((ur - right_u) / sigma) ** 2
+    e = np.where(np.isfinite(right_u), e + (ur - right_u) ** 2, e)
+    return np.where(front, e / sigma**2, np.inf)
 
 
 __all__ = ["InertialBundleResult", "InertialTerms", "inertial_bundle_adjust"]

@@ -257,6 +257,7 @@ def initialise_inertial(
     max_gravity_std_deg: float = MAX_GRAVITY_STD_DEG,
     max_chi2_per_dof: float = MAX_CHI2_PER_DOF,
     max_iterations: int = MAX_ITERATIONS,
+    refusals: list[str] | None = None,
 ) -> InertialInit | None:
     """Scale, gravity, velocities and biases of a window of keyframes (module docstring).
 
@@ -274,9 +275,11 @@ def initialise_inertial(
         rotation_sigma_deg: the same for its rotation, degrees.
         min_duration_s, max_scale_std, max_gravity_std_deg: refusal thresholds.
         max_iterations: Levenberg-Marquardt iterations.
+        refusals: when given, a refused window's reason is appended to it.
 
     Returns:
-        The estimate, or None when the window is refused (the reason is logged at INFO).
+        The estimate, or None when the window is refused (the reason is logged at INFO, and
+        kept in ``refusals``).
 
     Raises:
         InputError: malformed keyframes or IMU samples, or IMU samples that do not cover the
@@ -296,8 +299,9 @@ def initialise_inertial(
     duration = float(stamps[-1] - stamps[0]) * 1e-9 if stamps.size else 0.0
     if stamps.size < MIN_KEYFRAMES or duration < min_duration_s:
         return _refuse(
+            refusals,
             f"{stamps.size} keyframes over {duration:.2f} s: an inertial initialisation needs "
-            f"at least {MIN_KEYFRAMES} keyframes over {min_duration_s:g} s"
+            f"at least {MIN_KEYFRAMES} keyframes over {min_duration_s:g} s",
         )
     import gtsam
 
@@ -310,9 +314,10 @@ def initialise_inertial(
     )
     if rotation_rms > MAX_ROTATION_RESIDUAL_DEG:
         return _refuse(
+            refusals,
             f"the keyframes' rotations disagree with the gyroscope by {rotation_rms:.2f} deg "
             f"RMS per interval (at most {MAX_ROTATION_RESIDUAL_DEG:g}): check body_from_camera "
-            "and the clock offset between camera and IMU"
+            "and the clock offset between camera and IMU",
         )
     bias0 = gtsam.imuBias.ConstantBias(np.zeros(3), gyro_bias)
     pims = _integrate(stamps, samples, params, bias0)
@@ -331,19 +336,23 @@ def initialise_inertial(
     )
     init = _collect(graph, result, pims, frames, stamps, prior_scale, noise.gravity_mps2)
     if init is None:
-        return _refuse("the scale and gravity are not determined: their information is singular")
+        return _refuse(
+            refusals, "the scale and gravity are not determined: their information is singular"
+        )
     init = replace(init, rotation_rms_deg=rotation_rms, iterations=iterations)
     if init.chi2_per_dof > max_chi2_per_dof:
         return _refuse(
+            refusals,
             f"the map and the IMU disagree far beyond their noise (chi2 per degree of freedom "
             f"{init.chi2_per_dof:.3g}, at most {max_chi2_per_dof:g}): check the clock offset, "
-            "body_from_camera and position_sigma_m"
+            "body_from_camera and position_sigma_m",
         )
     if init.scale_std > max_scale_std or init.gravity_std_deg > max_gravity_std_deg:
         return _refuse(
+            refusals,
             f"too little excitation: the scale's relative uncertainty is {init.scale_std:.3g} "
             f"(at most {max_scale_std:g}) and gravity's {init.gravity_std_deg:.3g} deg (at most "
-            f"{max_gravity_std_deg:g}) over {stamps.size} keyframes and {duration:.2f} s"
+            f"{max_gravity_std_deg:g}) over {stamps.size} keyframes and {duration:.2f} s",
         )
     return init
 
@@ -358,15 +367,11 @@ def _check_settings(prior_scale: float | None, max_iterations: int, **sigmas: fl
         raise ConfigError(f"max_iterations: expected at least 1, got {max_iterations}")
 
 
-last_refusal: str = ""
-"""Why the last window was refused (for a run's record of why it never initialised)."""
-
-
-def _refuse(reason: str) -> InertialInit | None:
-    """None, the answer for a refused window, with ``reason`` logged and kept in
-    :data:`last_refusal`."""
-    global last_refusal
-    last_refusal = reason
+def _refuse(refusals: list[str] | None, reason: str) -> InertialInit | None:
+    """None, the answer for a refused window, with ``reason`` logged and appended to
+    ``refusals`` when given."""
+    if refusals is not None:
+        refusals.append(reason)
     log.info("inertial initialisation refused: %s", reason)
     return None
 

@@ -24,7 +24,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -248,10 +248,28 @@ def preintegrate(
     import gtsam
 
     t, g, a = check_imu_samples(stamps_ns, gyro, accel)
-    dt, g_mid, a_mid = interval_readings(t, g, a, int(t0_ns), int(t1_ns))
     pim = gtsam.PreintegratedImuMeasurements(
         params, bias if bias is not None else gtsam.imuBias.ConstantBias()
     )
-    for step, w, f in zip(dt.tolist(), g_mid, a_mid, strict=True):
-        pim.integrateMeasurement(f, w, step)
+    return integrate(pim, interval_readings(t, g, a, int(t0_ns), int(t1_ns)))
+
+
+P = TypeVar("P")
+
+
+def integrate(pim: P, readings: tuple[F64, F64, F64]) -> P:
+    """Feed ``pim`` (GTSAM's plain or combined preintegrated measurements) the
+    piecewise-constant ``readings`` of :func:`interval_readings` (durations, gyro, accel);
+    returns it."""
+    dt, gyro, accel = readings
+    for step, w, f in zip(dt.tolist(), gyro, accel, strict=True):
+        pim.integrateMeasurement(f, w, step)  # type: ignore[attr-defined]
     return pim
+
+
+def bias_of(state: ArrayLike) -> gtsam.imuBias.ConstantBias:
+    """GTSAM's bias from (6,) gyroscope (rad/s) then accelerometer (m/s²) biases."""
+    import gtsam
+
+    b = np.asarray(state, dtype=np.float64).reshape(6)
+    return gtsam.imuBias.ConstantBias(b[3:], b[:3])

@@ -29,11 +29,13 @@ from numpy.typing import NDArray
 
 from slamcli.errors import InputError
 from slamcli.geometry import inverse
-from slamcli.inertial.preintegration import ImuNoise, interval_readings
+from slamcli.inertial.preintegration import ImuNoise, bias_of, integrate, interval_readings
 from slamcli.pipelines.visual.atlas import Keyframe
 from slamcli.pipelines.visual.parts import Part, Shared
 
 if TYPE_CHECKING:
+    import gtsam
+
     from slamcli.inertial.bundle import InertialTerms
     from slamcli.inertial.initialisation import InertialInit
     from slamcli.types import ImuFrame
@@ -148,39 +150,49 @@ class Inertial(Part):
         """
         if not report:
             return
-        problems: list[str] = list(report.get("problems", []))
-        fatal = [
-            p
-            for p in problems
-            if "looks like deg/s" in p or "is not in m/s^2" in p or "no usable IMU sample" in p
-        ]
+        where = report.get("where", "the IMU")
+        fatal = []
+        if report.get("gyro_units_suspect"):
+            fatal.append(
+                f"{where}: the gyroscope looks like deg/s, not rad/s: "
+                f"{report.get('gyro_units_reason')}"
+            )
+        if report.get("accel_units_suspect"):
+            fatal.append(
+                f"{where}: the accelerometer is not in m/s^2: {report.get('accel_units_reason')}"
+            )
         offset = report.get("camera_offset_s")
         images = int(report.get("images") or 0)
         uncovered = int(report.get("uncovered_images") or 0)
         if images and uncovered > images // 2:
             shift = f" (shifting its stamps by {offset:.3f} s would cover them)" if offset else ""
             fatal.append(
-                f"{report.get('where', 'the IMU')}: {uncovered} of {images} images have no IMU "
-                f"sample around them: the IMU's clock is off the camera's{shift}"
+                f"{where}: {uncovered} of {images} images have no IMU sample around them: the "
+                f"IMU's clock is off the camera's{shift}"
             )
         elif offset and frame_s and abs(offset) > frame_s:
             fatal.append(
-                f"{report.get('where', 'the IMU')}: its stamps are offset from the camera's by "
-                f"{offset:.3f} s, more than a frame ({frame_s:.3f} s)"
+                f"{where}: its stamps are offset from the camera's by {offset:.3f} s, more than "
+                f"a frame ({frame_s:.3f} s)"
             )
         if fatal:
             raise InputError(
                 "; ".join(fatal),
                 hint="fix the IMU's units or stamps, or run without the IMU: --set imu=false",
             )
-        lost_words = (
-            "gap(s) longer",
-            "repeat an earlier stamp",
-            "earlier than the sample",
-            "sticks at its extreme",
-            "in every sample",
-        )
-        self.data_loss = [p for p in problems if any(w in p for w in lost_words)]
+        lost = []
+        if report.get("gaps"):
+            lost.append(
+                f"{where}: {report['gaps']} gap(s) without samples, the longest "
+                f"{report.get('largest_gap_s', 0.0):.3f} s"
+            )
+        for key, what in (("duplicates", "repeat an earlier stamp"), ("backwards", "go back")):
+            if report.get(key):
+                lost.append(f"{where}: {report[key]} sample(s) {what}")
+        stuck = sum(int(n) for n in (report.get("saturated") or {}).values())
+        if stuck:
+            lost.append(f"{where}: {stuck} sample(s) stuck at their axis' extreme (saturated)")
+        self.data_loss = lost
 
     def samples(self) -> tuple[I64, F64, F64]:
         """The samples so far: stamps (ns), gyro (rad/s), accel (m/s²)."""
@@ -190,6 +202,17 @@ class Inertial(Part):
     def covers(self, t0_ns: int, t1_ns: int) -> bool:
         """Whether samples lie at or before ``t0`` and at or after ``t1``."""
         return self._n > 0 and self._t[0] <= t0_ns and self._t[self._n - 1] >= t1_ns
+
+    def _preintegrate(
+        self, t0_ns: int, t1_ns: int, bias: F64
+    ) -> gtsam.PreintegratedImuMeasurements:
+        """The IMU's motion over [t0, t1] preintegrated around ``bias`` (gyroscope, then
+        accelerometer)."""
+        import gtsam
+
+        assert self.noise is not None
+        pim = gtsam.PreintegratedImuMeasurements(self.noise.params(), bias_of(bias))
+        return integrate(pim, self.readings(t0_ns, t1_ns))
 
     def readings(self, t0_ns: int, t1_ns: int) -> tuple[F64, F64, F64]:
         """The piecewise-constant readings over [t0, t1] (see
@@ -215,18 +238,14 @@ class Inertial(Part):
         ``kf``'s state; None without IMU samples covering the interval."""
         import gtsam
 
-        assert self.noise is not None
         state = self.states[kf.id]
         if stamp_ns == kf.stamp_ns:
             return self.world_from_body(kf), state[:3].copy()
         if stamp_ns < kf.stamp_ns or not self.covers(kf.stamp_ns, stamp_ns):
             return None
-        bias = gtsam.imuBias.ConstantBias(state[6:9], state[3:6])
-        pim = gtsam.PreintegratedImuMeasurements(self.noise.params(), bias)
-        dt, g, a = self.readings(kf.stamp_ns, stamp_ns)
-        for step, w, f in zip(dt.tolist(), g, a, strict=True):
-            pim.integrateMeasurement(f, w, step)
-        nav = pim.predict(gtsam.NavState(gtsam.Pose3(self.world_from_body(kf)), state[:3]), bias)
+        pim = self._preintegrate(kf.stamp_ns, stamp_ns, state[3:9])
+        start = gtsam.NavState(gtsam.Pose3(self.world_from_body(kf)), state[:3])
+        nav = pim.predict(start, bias_of(state[3:9]))
         return nav.pose().matrix(), np.asarray(nav.velocity(), np.float64)
 
     def predict_back(self, kf: Keyframe, stamp_ns: int) -> tuple[F64, F64] | None:
@@ -234,8 +253,6 @@ class Inertial(Part):
         integrated back from its state: with ``ΔR, Δv, Δp`` preintegrated over
         [``stamp_ns``, kf] in the earlier body frame, ``R = R_kf ΔRᵀ``,
         ``v = v_kf - g Δt - R Δv`` and ``p = p_kf - v Δt - ½ g Δt² - R Δp``."""
-        import gtsam
-
         assert self.noise is not None
         if stamp_ns > kf.stamp_ns or not self.covers(stamp_ns, kf.stamp_ns):
             return None
@@ -243,11 +260,7 @@ class Inertial(Part):
         end = self.world_from_body(kf)
         if stamp_ns == kf.stamp_ns:
             return end, state[:3].copy()
-        bias = gtsam.imuBias.ConstantBias(state[6:9], state[3:6])
-        pim = gtsam.PreintegratedImuMeasurements(self.noise.params(), bias)
-        dt, gy, ac = self.readings(stamp_ns, kf.stamp_ns)
-        for step, w, f in zip(dt.tolist(), gy, ac, strict=True):
-            pim.integrateMeasurement(f, w, step)
+        pim = self._preintegrate(stamp_ns, kf.stamp_ns, state[3:9])
         g = np.array([0.0, 0.0, -self.noise.gravity_mps2])
         t = pim.deltaTij()
         r = end[:3, :3] @ pim.deltaRij().matrix().T
@@ -375,6 +388,7 @@ class Inertial(Part):
             return None
         assert self.noise is not None
         self.attempts += 1
+        refusals: list[str] = []
         init = initialise_inertial(
             [(k.stamp_ns, inverse(k.cam_from_world)) for k in kfs],
             self.samples(),
@@ -382,12 +396,11 @@ class Inertial(Part):
             self.rig.body_from_camera,
             prior_scale=None if self.rig.mono else 1.0,
             max_chi2_per_dof=MONO_MAX_CHI2_PER_DOF if self.rig.mono else MAX_CHI2_PER_DOF,
+            refusals=refusals,
         )
         self.stats.counts["imu_init_attempts"] += 1
         if init is None:
-            from slamcli.inertial import initialisation
-
-            self.last_refusal = initialisation.last_refusal
+            self.last_refusal = refusals[-1] if refusals else ""
             return None
         self.inits[map_id] = init
         for k, v in zip(kfs, init.velocities, strict=True):
@@ -422,14 +435,9 @@ class Inertial(Part):
         agrees with the gyroscope's, integrated without bias, within
         :data:`GYRO_AGREEMENT_DEG` and what :data:`GYRO_BIAS_BOUND` turns over the interval
         (True when the IMU does not cover the interval)."""
-        from slamcli.geometry import so3_exp
-
         if not self.enabled or t1_ns <= t0_ns or not self.covers(t0_ns, t1_ns):
             return True
-        dt, g, _a = self.readings(t0_ns, t1_ns)
-        body0_from_body1 = np.eye(3)
-        for step, w in zip(dt.tolist(), g, strict=True):
-            body0_from_body1 = body0_from_body1 @ so3_exp(w * step)
+        body0_from_body1 = self._preintegrate(t0_ns, t1_ns, np.zeros(6)).deltaRij().matrix()
         r_bc = self.rig.body_from_camera[:3, :3]
         cam0_from_cam1 = r_bc.T @ body0_from_body1 @ r_bc
         off = cam1_from_cam0 @ cam0_from_cam1
@@ -562,12 +570,10 @@ class Inertial(Part):
         w[:3, :3] = init.scale * init.world_from_visual
         return w
 
-    def table(self, main: int | None) -> list[dict[str, Any]]:
-        """Per keyframe of map ``main``: stamp, velocity and biases (``imu_states.csv``)."""
+    def table(self, main: int | None) -> F64 | None:
+        """(K, 10) per keyframe of map ``main``, once its IMU is initialised: stamp (ns),
+        velocity and biases (:attr:`~slamcli.types.SlamResult.imu_states`); else None."""
         if main is None or not self.active(main):
-            return []
-        rows = []
-        for k in self.chain(main):
-            s = self.states[k.id]
-            rows.append({"stamp_ns": int(k.stamp_ns), "state": s.copy()})
-        return rows
+            return None
+        chain = self.chain(main)
+        return np.array([[k.stamp_ns, *self.states[k.id]] for k in chain], dtype=np.float64)

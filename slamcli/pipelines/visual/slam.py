@@ -521,7 +521,7 @@ class VisualSlam(PipelineBase):
                 **({"inertial": self._inertial_record(main)} if self.inertial.enabled else {}),
             },
             counts=counts,
-            imu_states=self._imu_states(main),
+            imu_states=self.inertial.table(main),
             data_loss=self._imu_loss(),
             truth_to_estimate=self.rig.truth_to_trajectory,
         )
@@ -536,14 +536,6 @@ class VisualSlam(PipelineBase):
                 "on the sample before"
             )
         return lines
-
-    def _imu_states(self, main: int | None) -> F64 | None:
-        """(K, 10) stamp, velocity and biases per keyframe of the main map, once its IMU is
-        initialised (see :attr:`~slamcli.types.SlamResult.imu_states`)."""
-        rows = self.inertial.table(main)
-        if not rows:
-            return None
-        return np.array([[r["stamp_ns"], *r["state"]] for r in rows], dtype=np.float64)
 
 
 def _frame_interval(info: SourceInfo) -> float | None:
