@@ -44,8 +44,14 @@ class SourceOptions:
     odometry: str | None = None
     groundtruth: str | None = None
     max_range: float | None = None
+    calib: tuple[str, ...] | None = None
 
     def __post_init__(self) -> None:
+        # One --calib file from a manifest may be given as text; several as a list.
+        if isinstance(self.calib, str):
+            object.__setattr__(self, "calib", (self.calib,))
+        elif isinstance(self.calib, list):
+            object.__setattr__(self, "calib", tuple(self.calib))
         # "--robot 2" arrives as text; one robot is recorded as the number it names.
         if isinstance(self.robot, str) and self.robot.strip().isdigit():
             object.__setattr__(self, "robot", int(self.robot))
@@ -97,6 +103,9 @@ def _fits(value: Any, default: Any, annotation: Any) -> bool:
     text = str(annotation)
     if value is None:
         return "None" in text
+    if "tuple[str" in text:
+        items = value if isinstance(value, list) else [value]
+        return bool(items) and all(isinstance(v, str) for v in items)
     if "int | str" in text:
         return isinstance(value, int | str) and not isinstance(value, bool)
     if "bool" in text:
@@ -112,6 +121,8 @@ def _fits(value: Any, default: Any, annotation: Any) -> bool:
 
 def _kind(annotation: Any) -> str:
     text = str(annotation)
+    if "tuple[str" in text:
+        return "a file name or a list of them"
     for name, word in (("bool", "true or false"), ("int", "an integer"), ("float", "a number")):
         if name in text:
             return word

@@ -355,11 +355,11 @@ def test_left_and_right_images_of_different_sizes_are_refused(
 
 
 def test_a_kitti_log_as_a_ros1_bag_gives_the_same_pairs(kitti: _Kitti, tmp_path: Path) -> None:
-    from test_rosbag import _ros1_bag
+    from bag_files import ros1_bag
 
-    # rosbags' ROS 1 type store has no tf2_msgs: this bag has no tf (none is needed).
+    # This bag has no tf: rectified pairs need none.
     mcap = _write(tmp_path / "kitti.mcap", kitti.pairs[:3], kitti.infos, [])
-    bag = _ros1_bag(mcap, tmp_path / "kitti.bag")
+    bag = ros1_bag(mcap, tmp_path / "kitti.bag")
     with open_source(bag) as source:
         assert isinstance(source, Ros1BagSource)
         frames = [f for f in source.frames(("stereo",)) if isinstance(f, StereoFrame)]

@@ -3,17 +3,16 @@ MCAP log written from the same messages, and the real 2010 bag whose index rosba
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 import logging
 import shutil
 import sys
-from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from bag_files import ros1_bag, ros2_bag
 from conftest import shared_path
 
 from slamcli.demo import default_sample
@@ -64,82 +63,16 @@ def room(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
-def _mcap_messages(path: Path) -> Iterator[tuple[str, str, int, bytes]]:
-    """(topic, schema name, log time, data) of each message of an MCAP log."""
-    from mcap.reader import make_reader
-
-    with path.open("rb") as fh:
-        for schema, channel, message in make_reader(fh).iter_messages(log_time_order=True):
-            assert schema is not None
-            yield channel.topic, schema.name, message.log_time, message.data
-
-
-def _ros2_bag(mcap: Path, out: Path, storage: str, compress: bool = False) -> Path:
-    from rosbags.rosbag2 import StoragePlugin, Writer
-    from rosbags.rosbag2.enums import CompressionFormat, CompressionMode
-    from rosbags.typesys import Stores, get_typestore
-
-    store = get_typestore(Stores.ROS2_HUMBLE)
-    plugin = StoragePlugin.MCAP if storage == "mcap" else StoragePlugin.SQLITE3
-    writer = Writer(out, version=Writer.VERSION_LATEST, storage_plugin=plugin)
-    if compress:
-        writer.set_compression(CompressionMode.MESSAGE, CompressionFormat.ZSTD)
-    with writer:
-        conns: dict[str, Any] = {}
-        for topic, schema, stamp, data in _mcap_messages(mcap):
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, schema, typestore=store)
-            writer.write(conns[topic], stamp, data)
-    return out
-
-
-def _to_ros1(msg: Any, store: Any) -> Any:
-    """A ROS 2 message as the ROS 1 (Noetic) message of the same type: the same fields (ROS 1
-    spells CameraInfo's in upper case) and a zero header ``seq``."""
-    if isinstance(msg, list | tuple):
-        return [_to_ros1(m, store) for m in msg]
-    if not dataclasses.is_dataclass(msg):
-        return msg
-    cls = store.types[msg.__msgtype__]
-    values = {}
-    for f in dataclasses.fields(cls):
-        if f.name == "__msgtype__":
-            continue
-        name = f.name if hasattr(msg, f.name) else f.name.lower()
-        values[f.name] = _to_ros1(getattr(msg, name), store) if hasattr(msg, name) else 0
-    return cls(**values)
-
-
-def _ros1_bag(mcap: Path, out: Path, compression: str = "none", chunk: int = 1 << 20) -> Path:
-    from rosbags.rosbag1 import Writer
-    from rosbags.typesys import Stores, get_typestore
-
-    ros2 = get_typestore(Stores.ROS2_HUMBLE)
-    ros1 = get_typestore(Stores.ROS1_NOETIC)
-    writer = Writer(out)
-    writer.chunk_threshold = chunk
-    if compression != "none":
-        writer.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
-    with writer:
-        conns: dict[str, Any] = {}
-        for topic, schema, stamp, data in _mcap_messages(mcap):
-            if topic not in conns:
-                conns[topic] = writer.add_connection(topic, schema, typestore=ros1)
-            msg = _to_ros1(ros2.deserialize_cdr(data, schema), ros1)
-            writer.write(conns[topic], stamp, ros1.serialize_ros1(msg, schema))
-    return out
-
-
 @pytest.fixture(scope="module")
 def bags(room: Path, tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     out = tmp_path_factory.mktemp("bags")
     return {
-        "sqlite3": _ros2_bag(room, out / "sqlite3", "sqlite3"),
-        "mcap": _ros2_bag(room, out / "mcap", "mcap"),
-        "mcap_zstd": _ros2_bag(room, out / "mcap_zstd", "mcap", compress=True),
-        "ros1": _ros1_bag(room, out / "room.bag", chunk=400_000),
-        "ros1_bz2": _ros1_bag(room, out / "room_bz2.bag", "bz2", chunk=400_000),
-        "ros1_lz4": _ros1_bag(room, out / "room_lz4.bag", "lz4", chunk=400_000),
+        "sqlite3": ros2_bag(room, out / "sqlite3", "sqlite3"),
+        "mcap": ros2_bag(room, out / "mcap", "mcap"),
+        "mcap_zstd": ros2_bag(room, out / "mcap_zstd", "mcap", compress=True),
+        "ros1": ros1_bag(room, out / "room.bag", chunk=400_000),
+        "ros1_bz2": ros1_bag(room, out / "room_bz2.bag", "bz2", chunk=400_000),
+        "ros1_lz4": ros1_bag(room, out / "room_lz4.bag", "lz4", chunk=400_000),
     }
 
 

@@ -7,7 +7,10 @@ Each real-data run is made once per session (the fixtures below) and read by sev
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -21,6 +24,7 @@ from slamcli.formats.kitti import KittiSource
 from slamcli.formats.trajectory import read_trajectory
 from slamcli.pipelines.visual import VisualConfig, VisualSlam
 from slamcli.run import RunOutcome, run_pipeline
+from slamcli.types import StereoFrame
 from slamcli.vision.matching import match_ratio, match_ratio_grouped
 
 KITTI = ("stereo", "kitti_excerpt_1")
@@ -46,10 +50,17 @@ def kitti_run(tmp_path_factory: pytest.TempPathFactory) -> RunOutcome:
 
 
 @pytest.fixture(scope="session")
-def euroc_run(tmp_path_factory: pytest.TempPathFactory) -> RunOutcome:
-    out = tmp_path_factory.mktemp("stereo") / "euroc"
-    gt = shared_path(*EUROC) / "groundtruth_body.txt"
-    return run_pipeline(shared_path(*EUROC), "visual", out, source_options={"groundtruth": str(gt)})
+def euroc_run(shared_run: Any) -> Any:
+    """The docs' EuRoC example (made once per session, also read by the visual-inertial
+    tests), as these tests read a run: ``run_dir``, ``metrics`` (run.json's) and ``result``'s
+    ``metrics`` and ``trajectory`` (trajectory.tum's)."""
+    folder = shared_path(*EUROC)
+    run = shared_run("run", "visual", folder, "--groundtruth", folder / "groundtruth_body.txt")
+    assert run.exit_code == 0 and run.exception is None, run.output + run.traceback
+    metrics = json.loads((run.out / "run.json").read_text())["metrics"]
+    trajectory = read_trajectory(run.out / "trajectory.tum")
+    result = SimpleNamespace(metrics=metrics, trajectory=trajectory)
+    return SimpleNamespace(run_dir=run.out, metrics=metrics, result=result)
 
 
 def _positions(outcome: RunOutcome) -> np.ndarray:
@@ -222,16 +233,44 @@ def test_synthetic_loop_is_closed_at_metric_scale(
     assert abs(scale - 1.0) < SYNTH_SCALE_ERROR
 
 
-def test_euroc_through_a_converted_mcap_poses_every_pair(
-    euroc_run: RunOutcome, tmp_path: Path
-) -> None:
+@pytest.fixture(scope="session")
+def euroc_logs(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """The EuRoC excerpt as a converted MCAP log; that log as a ROS 1 bag (a bag's IMU topic
+    carries no noise model); a bare bag of the images and the IMU alone (no CameraInfo, no
+    tf, as EuRoC's own bags); and the rig's Kalibr files."""
+    from bag_files import ros1_bag
+    from kalibr_files import write_kalibr
+
     from slamcli.formats.mcap.write.stereo import write_stereo_mcap
 
+    out = tmp_path_factory.mktemp("euroc_logs")
     folder = shared_path(*EUROC)
     gt = read_trajectory(folder / "groundtruth_body.txt")
-    log = tmp_path / "euroc.mcap"
+    log = out / "euroc.mcap"
     write_stereo_mcap(open_source(folder), log, groundtruth=gt)
-    outcome = run_pipeline(log, "visual", tmp_path / "run")
+    camchain, imu = write_kalibr(folder, out / "kalibr")
+    bare = ("/cam0/image_raw", "/cam1/image_raw", "/imu0")
+    return {
+        "mcap": log,
+        "bag": ros1_bag(log, out / "euroc.bag"),
+        "bare": ros1_bag(log, out / "bare.bag", topics=bare),
+        "camchain": camchain,
+        "imu": imu,
+    }
+
+
+def _same_trajectory(outcome: RunOutcome, reference: RunOutcome) -> float:
+    """The largest distance between two runs' positions (they must pose the same frames)."""
+    ours = outcome.result.trajectory.world_from_body[:, :3, 3]
+    theirs = reference.result.trajectory.world_from_body[:, :3, 3]
+    assert ours.shape == theirs.shape
+    return float(np.max(np.linalg.norm(ours - theirs, axis=1)))
+
+
+def test_euroc_through_a_converted_mcap_poses_every_pair(
+    euroc_run: RunOutcome, euroc_logs: dict[str, Path], tmp_path: Path
+) -> None:
+    outcome = run_pipeline(euroc_logs["mcap"], "visual", tmp_path / "run")
     assert outcome.result.metrics["mode"] == "stereo"
     assert len(outcome.result.trajectory) == 95
     assert outcome.metrics["evaluation"]["ate"]["rmse"] < 0.005
@@ -239,6 +278,53 @@ def test_euroc_through_a_converted_mcap_poses_every_pair(
     # channel's metadata) and its mounting (tf): the same visual-inertial run as the folder's.
     assert outcome.result.metrics["inertial"]["initialised"]
     assert euroc_run.result.metrics["inertial"]["initialised"]
-    ours = outcome.result.trajectory.world_from_body[:, :3, 3]
-    theirs = euroc_run.result.trajectory.world_from_body[:, :3, 3]
-    assert np.max(np.linalg.norm(ours - theirs, axis=1)) < 0.003
+    assert _same_trajectory(outcome, euroc_run) < 1e-6
+
+
+def test_euroc_as_a_ros1_bag_with_kalibr_imu_yaml_is_read_as_the_folder(
+    euroc_logs: dict[str, Path],
+) -> None:
+    # The bag's CameraInfo and tf place the cameras and the IMU; imu.yaml gives the noise a
+    # ROS 1 bag cannot carry: the pipeline gets what the folder gives it, so the same run.
+    folder = open_source(shared_path(*EUROC))
+    with open_source(euroc_logs["bag"], calib=[str(euroc_logs["imu"])]) as bag:
+        info, want = bag.info(), folder.info()
+        assert VisualSlam(VisualConfig()).frame_kinds(info) == ("stereo", "imu")
+        for key, value in want.details["imu"].items():
+            assert np.allclose(info.details["imu"][key], value, atol=1e-12), key
+        got = [f for f in bag.frames(("stereo", "imu"))][:300]
+    ref = [f for f in folder.frames(("stereo", "imu"))][:300]
+    assert [type(f).__name__ for f in got] == [type(f).__name__ for f in ref]
+    assert [f.stamp_ns for f in got] == [f.stamp_ns for f in ref]
+    for a, b in zip(got, ref, strict=True):
+        if isinstance(a, StereoFrame):
+            assert np.array_equal(a.left, b.left) and np.array_equal(a.right, b.right)
+            assert np.allclose(a.rig.body_from_left, b.rig.body_from_left, atol=1e-12)
+        else:
+            assert np.array_equal(a.gyro_radps, b.gyro_radps)
+
+
+def test_a_bare_ros1_bag_runs_visual_inertial_on_the_kalibr_files(
+    euroc_run: RunOutcome, euroc_logs: dict[str, Path], tmp_path: Path
+) -> None:
+    # Images and IMU alone: the cameras, their mounting on the IMU and its noise all come
+    # from camchain-imucam.yaml and imu.yaml; the body is the IMU, as EuRoC's.
+    calib = (str(euroc_logs["camchain"]), str(euroc_logs["imu"]))
+    gt = shared_path(*EUROC) / "groundtruth_body.txt"
+    options = {"calib": calib, "groundtruth": str(gt)}
+    outcome = run_pipeline(euroc_logs["bare"], "visual", tmp_path / "run", source_options=options)
+    assert outcome.result.metrics["inertial"]["initialised"]
+    assert len(outcome.result.trajectory) == 95
+    assert outcome.metrics["evaluation"]["ate"]["rmse"] < 0.002
+    assert _same_trajectory(outcome, euroc_run) < 1e-6
+
+
+def test_a_bag_imu_without_a_noise_model_is_named_and_left_out(
+    euroc_logs: dict[str, Path],
+) -> None:
+    with open_source(euroc_logs["bag"]) as source:
+        info = source.info()
+    assert "imu" not in info.details  # no channel metadata in a ROS 1 bag
+    slam = VisualSlam(VisualConfig())
+    assert "imu" not in slam.frame_kinds(info)
+    assert "--calib" in slam.imu_unused

@@ -100,6 +100,7 @@ _NOT_FOR_CONVERT = (
     "landmark_topic",
     "left_topic",
     "right_topic",
+    "calib",
 )
 """Source options convert has no use for: it reads RGB-D and landmark folders whole, and from an
 MCAP log only the poses of --gt-topic or --gt-frame."""

@@ -144,6 +144,19 @@ Groundtruth = Annotated[
         rich_help_panel=PANEL,
     ),
 ]
+Calib = Annotated[
+    list[str] | None,
+    typer.Option(
+        "--calib",
+        help="Kalibr calibration files (EuRoC folders, MCAP logs, bags), given once each: "
+        "camchain-imucam.yaml (the cameras, and the IMU on them: the body is then the IMU) and "
+        "imu.yaml (the IMU's noise and rate). They replace the input's own calibration; a log "
+        "without camera_info or tf, or a ROS 1 bag (whose IMU topic carries no noise model), "
+        "needs them for a visual-inertial run.",
+        show_default=False,
+        rich_help_panel=PANEL,
+    ),
+]
 MaxRange = Annotated[
     float | None,
     typer.Option(
@@ -242,6 +255,7 @@ _OPTIONS: dict[str, Any] = {
     "odometry": Odometry,
     "groundtruth": Groundtruth,
     "max_range": MaxRange,
+    "calib": Calib,
 }
 """The typer option of each :class:`SourceOptions` field."""
 

@@ -244,15 +244,26 @@ def _body_from_sensor(p: Path, data: dict[str, Any], hint: str) -> F64:
         m = _floats(p, value, "data", (16,), hint)
     else:
         m = _floats(p, data, "T_BS", (16,), hint)
-    t = m.reshape(4, 4)
+    return check_rigid(
+        p, "T_BS", m.reshape(4, 4), "T_BS is body_from_sensor, row-major: [R t; 0 0 0 1]"
+    )
+
+
+def check_rigid(p: Path, key: str, t: F64, hint: str) -> F64:
+    """``t`` when it is a (4, 4) rigid transform (a rotation within :data:`ROTATION_TOL`, last
+    row 0 0 0 1).
+
+    Raises:
+        FormatError: it is not (names the file and ``key``).
+    """
     r = t[:3, :3]
     error = float(np.abs(r.T @ r - np.eye(3)).max())
     if error > ROTATION_TOL or not np.allclose(t[3], (0.0, 0.0, 0.0, 1.0)) or np.linalg.det(r) < 0:
         raise FormatError(
             p,
-            f"key 'T_BS': not a rigid transform (rotation off by {error:.2g}, last row "
+            f"key {key!r}: not a rigid transform (rotation off by {error:.2g}, last row "
             f"{t[3].tolist()})",
-            hint="T_BS is body_from_sensor, row-major: [R t; 0 0 0 1]",
+            hint=hint,
         )
     return t
 

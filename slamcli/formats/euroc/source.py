@@ -35,7 +35,7 @@ from __future__ import annotations
 import logging
 import os
 from collections.abc import Collection, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 from typing import Any
@@ -62,6 +62,7 @@ from slamcli.formats.euroc.calibration import (
     read_imu_sensor,
     rectify_stereo,
 )
+from slamcli.formats.euroc.kalibr import KalibrCalibration, read_kalibr
 from slamcli.formats.images import decode_image, image_size, read_image_file
 from slamcli.formats.pairing import associate_stamps
 from slamcli.formats.text import iter_data_lines, parse_count, parse_floats
@@ -280,9 +281,15 @@ class EurocSource(SourceBase):
 
     format_name = "euroc"
     frame_kinds = FRAME_KINDS
-    OPTIONS = ("max_dt",)
+    OPTIONS = ("max_dt", "calib")
 
-    def __init__(self, path: str | Path, *, max_dt: float = PAIR_MAX_DT_S) -> None:
+    def __init__(
+        self,
+        path: str | Path,
+        *,
+        max_dt: float = PAIR_MAX_DT_S,
+        calib: Collection[str | Path] | None = None,
+    ) -> None:
         self.path = Path(path)
         if not np.isfinite(max_dt) or max_dt <= 0:
             raise ConfigError(f"max_dt must be a positive number of seconds, got {max_dt}")
@@ -315,6 +322,10 @@ class EurocSource(SourceBase):
             if (self._imu_folder / "sensor.yaml").is_file()
             else None
         )
+        self.calib = read_kalibr(tuple(calib)) if calib else None
+        """The Kalibr files given with ``--calib``, which replace the sensor files they cover."""
+        if self.calib is not None:
+            self._use_calib(self.calib)
         self.missing = [*self.left_csv.missing, *self.right_csv.missing]
         """The first missing images of each camera (:data:`MISSING_KEPT`), named."""
         self.missing_count = self.left_csv.missing_count + self.right_csv.missing_count
@@ -328,6 +339,35 @@ class EurocSource(SourceBase):
         )
         self.left_index = np.asarray(li, dtype=np.int64)
         self.right_index = np.asarray(ri, dtype=np.int64)
+
+    def _use_calib(self, calib: KalibrCalibration) -> None:
+        """Take the cameras, the IMU's noise and the image time shift from Kalibr's files
+        (see :mod:`slamcli.formats.euroc.kalibr`); what they leave out stays the folder's."""
+        if calib.cameras:
+            cameras = calib.cameras_on_body(self.left_sensor.body_from_sensor)
+            if self.stereo and len(cameras) < 2:
+                raise InputError(
+                    f"{calib.chain_path}: the camera chain has one camera; {self.mav} has cam0 "
+                    "and cam1",
+                    hint="give the chain of both cameras",
+                )
+            self.left_sensor = cameras[0]
+            if self.stereo:
+                self.right_sensor = cameras[1]
+                self._rectification = rectify_stereo(self.left_sensor, self.right_sensor)
+        if calib.imu is not None:
+            folder = self.imu_sensor.body_from_sensor if self.imu_sensor is not None else None
+            self.imu_sensor = calib.imu_on_body(folder)
+        elif calib.imu_placed and self.imu_sensor is not None:
+            self.imu_sensor = replace(self.imu_sensor, body_from_sensor=np.eye(4))
+        if calib.time_shift_ns:
+            # Kalibr: t_imu = t_cam + shift. The images are put on the IMU's clock.
+            self.left_csv = replace(
+                self.left_csv, stamps_ns=self.left_csv.stamps_ns + calib.time_shift_ns
+            )
+            self.right_csv = replace(
+                self.right_csv, stamps_ns=self.right_csv.stamps_ns + calib.time_shift_ns
+            )
 
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
@@ -600,13 +640,21 @@ class EurocSource(SourceBase):
             }
             camera = rig.camera
             camera_source = (
-                f"rectified from mav0/cam0/sensor.yaml and mav0/cam1/sensor.yaml "
+                f"rectified from {self._calibrated_by()} "
                 f"({self.left_sensor.model}, baseline {rig.baseline_m:.4f} m)"
             )
         else:
             details["body_from_camera"] = self.left_sensor.body_from_sensor.tolist()
             camera = self.camera
-            camera_source = f"mav0/cam0/sensor.yaml ({self.left_sensor.model}; no cam1: monocular)"
+            camera_source = (
+                f"{self._calibrated_by()} ({self.left_sensor.model}; no cam1: monocular)"
+            )
+        if self.calib is not None:
+            details["calib"] = {
+                "files": [str(p) for p in self.calib.paths],
+                "body": "imu" if self.calib.imu_placed else "the folder's",
+                "time_shift_s": self.calib.time_shift_ns * 1e-9,
+            }
         if self.missing_count:
             problems.append(self._missing_problem())
         self._imu_info(streams, details, problems)
@@ -642,6 +690,14 @@ class EurocSource(SourceBase):
             problems=problems,
             details=details,
         )
+
+    def _calibrated_by(self) -> str:
+        """Where the cameras' calibration comes from, for ``info``."""
+        if self.calib is not None and self.calib.chain_path is not None:
+            return f"{self.calib.chain_path} (--calib)"
+        if self.stereo:
+            return "mav0/cam0/sensor.yaml and mav0/cam1/sensor.yaml"
+        return "mav0/cam0/sensor.yaml"
 
     def _camera_stream(self, csv: ImageCsv) -> StreamInfo:
         """A camera's images that exist, and how many its ``data.csv`` lists beyond them."""

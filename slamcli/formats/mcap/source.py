@@ -53,6 +53,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable, Collection, Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -62,6 +63,8 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError, InputError, TopicNotFoundError
 from slamcli.formats import sniff
 from slamcli.formats.base import Frame, ReadStats, SourceBase, SourceInfo
+from slamcli.formats.euroc.calibration import EQUIDISTANT
+from slamcli.formats.euroc.kalibr import KalibrCalibration, read_kalibr
 from slamcli.formats.mcap.adapters import Adapter, adapter_for, is_static_tf_topic
 from slamcli.formats.mcap.decode import DecodeError, decoder_for
 from slamcli.formats.mcap.mounting import ScanMounter
@@ -105,6 +108,7 @@ from slamcli.types import (
     ProgressFn,
     RgbdFrame,
     ScanFrame,
+    StereoFrame,
     Trajectory,
 )
 
@@ -142,6 +146,7 @@ class McapSource(SourceBase):
     OPTIONS = (
         *("max_dt", "dt_offset", "camera", "fx", "fy", "cx", "cy", "strict", "max_chunk_mb"),
         *TOPIC_OPTIONS,
+        "calib",
     )
 
     @classmethod
@@ -175,6 +180,7 @@ class McapSource(SourceBase):
         left_topic: str | None = None,
         right_topic: str | None = None,
         max_chunk_bytes: int = DEFAULT_MAX_CHUNK_BYTES,
+        calib: Collection[str | Path] | None = None,
     ) -> None:
         if not np.isfinite(max_dt) or max_dt <= 0:
             raise ConfigError(f"max_dt must be a positive number of seconds, got {max_dt}")
@@ -213,6 +219,25 @@ class McapSource(SourceBase):
         self._frame_stamps: list[int] = []
         self._motion_stamps: list[int] = []
         self._decoders: dict[str, tuple[Callable[[bytes], Any], Adapter]] = {}
+        self.calib = read_kalibr(tuple(calib)) if calib else None
+        """The Kalibr files given with ``--calib``: the cameras (and their topics), the IMU's
+        noise (and its topic) and the images' time shift, in place of the log's own."""
+        if self.calib is not None:
+            self._calib_topics(self.calib)
+
+    def _calib_topics(self, calib: KalibrCalibration) -> None:
+        """The topics a Kalibr file names (``rostopic``) stand in for flags not given, where the
+        log has them."""
+        cams = calib.camera_topics
+        named = {
+            "left": cams[0] if cams else "",
+            "rgb": cams[0] if cams else "",
+            "right": cams[1] if len(cams) > 1 else "",
+            "imu": calib.imu_topic,
+        }
+        for role, topic in named.items():
+            if topic and self._want.get(role) is None and topic in self._channels:
+                self._want[role] = topic
 
     @classmethod
     def sniff(cls, path: str | Path) -> bool:
@@ -260,6 +285,16 @@ class McapSource(SourceBase):
     def camera(self) -> tuple[PinholeCamera, str]:
         """The colour camera and a description of where it came from."""
         if self._camera is not None:
+            return self._camera
+        if self.calib is not None and self.calib.cameras:
+            cam0 = self.calib.cameras[0]
+            if cam0.model == EQUIDISTANT:
+                raise InputError(
+                    f"{self.calib.chain_path}: cam0 is an equidistant (fisheye) camera; single "
+                    "images from a log are read with radtan calibrations only",
+                    hint="run the log as a stereo pair, or convert it to an ASL folder",
+                )
+            self._camera = (cam0.camera, f"{cam0.path} cam0 (--calib)")
             return self._camera
         options_given = any(v is not None for v in self._camera_options)
         found = self._topics.camera_topic(str(self.topic("rgb")), options_given, self._first_record)
@@ -346,7 +381,27 @@ class McapSource(SourceBase):
         Odometry, landmark and scan frames come in the order of their stamps, in that order at
         equal stamps (see the module docstring); images and IMU readings in log-time order;
         stereo pairs and IMU readings read with them in stamp order (IMU first at equal stamps).
+        A Kalibr chain's ``timeshift_cam_imu`` is added to the images' stamps (Kalibr: ``t_imu
+        = t_cam + shift``), which puts them on the IMU's clock.
         """
+        shift = self.calib.time_shift_ns if self.calib is not None else 0
+        if not shift:
+            yield from self._frames(kinds)
+            return
+        for frame in self._frames(kinds):
+            if isinstance(frame, StereoFrame):
+                stamps = {"stamp_ns": frame.stamp_ns + shift}
+                if frame.right_stamp_ns is not None:
+                    stamps["right_stamp_ns"] = frame.right_stamp_ns + shift
+                yield replace(frame, **stamps)
+            elif isinstance(frame, ImageFrame | RgbdFrame):
+                yield replace(frame, stamp_ns=frame.stamp_ns + shift)
+            else:
+                yield frame
+        # The ground truth is interpolated to the stamps the frames were given.
+        self._frame_stamps = [t + shift for t in self._frame_stamps]
+
+    def _frames(self, kinds: Collection[str]) -> Iterator[Frame]:
         unknown = set(kinds) - set(FRAME_KINDS)
         if unknown:
             raise ConfigError(
@@ -435,6 +490,7 @@ class McapSource(SourceBase):
                 self._first_readable,
                 lambda: (rec for _, rec in self._records(self._topics_of(TF_SCHEMAS))),
                 self.max_dt_ns,
+                self.calib,
             )
         return self._stereo
 
@@ -461,7 +517,21 @@ class McapSource(SourceBase):
     def _image_frame(self, rec: ImageRecord, camera: PinholeCamera | None) -> ImageFrame:
         self.stats.read += 1
         self._frame_stamps.append(rec.stamp_ns)
-        return ImageFrame(rec.stamp_ns, rec.array, camera, name=f"{rec.frame_id}@{rec.stamp_ns}")
+        mounted = self._calib_camera_on_body()
+        return ImageFrame(
+            rec.stamp_ns,
+            rec.array,
+            camera,
+            name=f"{rec.frame_id}@{rec.stamp_ns}",
+            body_from_camera=mounted,
+        )
+
+    def _calib_camera_on_body(self) -> NDArray[np.float64] | None:
+        """``cam0`` of a Kalibr chain that places the IMU, on the body (the IMU); None
+        otherwise (the camera is the body of single images, as without ``--calib``)."""
+        if self.calib is None or not self.calib.cameras or not self.calib.imu_placed:
+            return None
+        return self.calib.cameras[0].body_from_sensor
 
     def _emit(
         self, pairs: list[tuple[ImageRecord, ImageRecord]], camera: PinholeCamera
@@ -616,6 +686,12 @@ class McapSource(SourceBase):
             problems.extend(scan_problems)
         except InputError as exc:
             problems.append(f"scans: {exc.msg}")
+        if self.calib is not None:
+            details["calib"] = {
+                "files": [str(p) for p in self.calib.paths],
+                "body": "imu" if self.calib.imu_placed else "the log's",
+                "time_shift_s": self.calib.time_shift_ns * 1e-9,
+            }
         try:
             details.update(self._imu_settings(details.get("body_frame")))
         except InputError as exc:
@@ -671,18 +747,24 @@ class McapSource(SourceBase):
     def _imu_settings(self, body_frame: str | None) -> dict[str, Any]:
         """The IMU's noise model and mounting, for a visual-inertial run: ``{"imu": {...}}``
         (the keys of :meth:`slamcli.formats.euroc.ImuSensor.noise`, ``rate_hz`` and
-        ``body_from_imu``) when the IMU channel's metadata holds its noise model (as slamcli's
-        stereo logs write it: ``sensor_msgs/Imu`` has no field for it) and ``/tf_static``
-        places its frame on the stereo rig's body; else nothing (the run is visual).
+        ``body_from_imu``) when a Kalibr ``imu.yaml`` was given (``--calib``) or the IMU
+        channel's metadata holds its noise model (as slamcli's stereo logs write it:
+        ``sensor_msgs/Imu`` has no field for it, and a ROS 1 bag no channel metadata), and the
+        IMU is placed on the rig's body (by the Kalibr chain, or by ``/tf_static``); else
+        nothing (the run is visual).
 
         Raises:
-            InputError: the metadata names a frame tf cannot place on the body.
+            InputError: the metadata names a frame tf cannot place on the body; a Kalibr IMU
+                that nothing places.
         """
         from slamcli.formats.euroc.calibration import IMU_NOISE_KEYS
-        from slamcli.formats.mcap.mounting import TfIndex
 
         topic = self.topic("imu", required=False)
-        if topic is None or not body_frame:
+        if topic is None:
+            return {}
+        if self.calib is not None and self.calib.imu is not None:
+            return {"imu": self._calib_imu_settings(topic, body_frame)}
+        if not body_frame:
             return {}
         meta = dict(self._channels[topic].metadata)
         if not all(key in meta for key in IMU_NOISE_KEYS):
@@ -696,11 +778,48 @@ class McapSource(SourceBase):
             ) from None
         frame = meta.get("frame_id", "")
         if frame and frame != body_frame:
-            index = TfIndex.read(rec for _, rec in self._records(self._topics_of(TF_SCHEMAS)))
-            firsts = [e.first_ns for e in index.buffer.edges() if e.first_ns is not None]
-            stamp = min(firsts) if firsts else 0
-            settings["body_from_imu"] = index.buffer.lookup(body_frame, frame, stamp).tolist()
+            settings["body_from_imu"] = self._tf_body_from(body_frame, frame).tolist()
         return {"imu": settings}
+
+    def _tf_body_from(self, body_frame: str, frame: str) -> NDArray[np.float64]:
+        """(4, 4) pose of ``frame`` on the body, from tf at its first stamp.
+
+        Raises:
+            InputError: tf does not join the two frames.
+        """
+        from slamcli.formats.mcap.mounting import TfIndex
+
+        index = TfIndex.read(rec for _, rec in self._records(self._topics_of(TF_SCHEMAS)))
+        firsts = [e.first_ns for e in index.buffer.edges() if e.first_ns is not None]
+        stamp = min(firsts) if firsts else 0
+        return index.buffer.lookup(body_frame, frame, stamp)
+
+    def _calib_imu_settings(self, topic: str, body_frame: str | None) -> dict[str, Any]:
+        """The IMU of a Kalibr ``imu.yaml``, placed by the camera chain (the body is the IMU)
+        or else by tf: the IMU messages' frame on the body.
+
+        Raises:
+            InputError: neither places it.
+        """
+        calib = self.calib
+        assert calib is not None and calib.imu is not None
+        placed = None
+        if not calib.imu_placed and body_frame:
+            frame = ""
+            for raw in self.log.messages([topic]):
+                header = getattr(decoder_for(raw.channel)(raw.data), "header", None)
+                frame = str(getattr(header, "frame_id", "") or "").lstrip("/")
+                break
+            if frame:
+                try:
+                    placed = self._tf_body_from(body_frame, frame)
+                except InputError:
+                    placed = None
+        imu = calib.imu_on_body(placed)
+        assert imu is not None
+        settings: dict[str, Any] = {"rate_hz": imu.rate_hz, **imu.noise()}
+        settings["body_from_imu"] = imu.body_from_sensor.tolist()
+        return settings
 
     def _imu_info(self) -> tuple[dict[str, Any], list[str]]:
         """The IMU topic's checks (:func:`~slamcli.formats.imu_checks.check_imu`: header

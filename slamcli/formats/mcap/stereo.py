@@ -32,6 +32,7 @@ import numpy as np
 
 from slamcli.errors import InputError, TopicNotFoundError
 from slamcli.formats.base import ReadStats, StreamInfo
+from slamcli.formats.euroc.kalibr import KalibrCalibration
 from slamcli.formats.mcap.decode import decoder_for
 from slamcli.formats.mcap.mounting import TfIndex
 from slamcli.formats.mcap.ordering import FORCE_FLUSH, ORDER_BUFFER, StreamPairer
@@ -40,6 +41,7 @@ from slamcli.formats.mcap.records import ImageRecord, PoseRecord
 from slamcli.formats.mcap.stereo_calibration import (
     CameraInfo,
     StereoCalibration,
+    body_from_camera,
     calibrate_stereo,
     read_camera_info,
 )
@@ -158,8 +160,13 @@ def open_stereo(
     first_readable: Callable[[str], Any],
     transforms: Callable[[], Iterable[Any]],
     fallback_dt_ns: int,
+    calib: KalibrCalibration | None = None,
 ) -> StereoSetup:
     """Choose the topics, read both calibrations and tf, and set the pairing tolerance.
+
+    With a Kalibr camera chain (``calib``) the pair is rectified from it, not from the log's
+    CameraInfo: on the IMU when the chain places it, else with the left camera where tf puts
+    it on the body.
 
     Args:
         path: the log, for messages.
@@ -176,6 +183,25 @@ def open_stereo(
             :func:`~slamcli.formats.mcap.stereo_calibration.calibrate_stereo`).
     """
     topics = choose_stereo_topics(path, chooser, want.get("left"), want.get("right"))
+    if calib is not None and calib.cameras:
+        index = TfIndex.read(transforms())
+        body = body_frame(index.frames(), _odometry_children(chooser, first_readable))
+        first = first_readable(topics.left)
+        frame = first.frame_id if isinstance(first, ImageRecord) else ""
+        body_from_cam, found = body_from_camera(index.buffer, body, frame)
+        placed = calib.imu_placed or not found
+        rectified = calib.stereo(None if placed else body_from_cam)
+        c = rectified.rig.camera
+        calibration = StereoCalibration(
+            rectified.rig,
+            rectified,
+            f"rectified by stereoRectify from {calib.chain_path} (--calib, "
+            f"{calib.cameras[0].model})",
+            (c.width, c.height),
+            "" if placed else found,
+        )
+        tolerance = pairing_tolerance_ns(message_log, chooser, topics.left, fallback_dt_ns)
+        return StereoSetup(topics, calibration, tolerance)
     left = _camera_info(path, chooser, message_log, topics.left, None)
     right = _camera_info(path, chooser, message_log, topics.right, left.topic)
     index = TfIndex.read(transforms())

@@ -242,7 +242,7 @@ def calibrate_stereo(
             hint="check --left-topic and --right-topic name the two cameras of one pair",
         )
     size = (left.width, left.height)
-    body_from_cam, body_frame = _body_from_camera(tf, body, left.frame_id)
+    body_from_cam, body_frame = body_from_camera(tf, body, left.frame_id)
     given_p = left.p is not None and right.p is not None
     if (left.undistorted and right.undistorted) or (rectified_topics and given_p):
         r1 = left.r if left.r is not None and not left.undistorted else np.eye(3)
@@ -307,7 +307,7 @@ def _raw_pair(
     )
 
 
-def _body_from_camera(tf: TfBuffer, body: str | None, frame: str) -> tuple[F64, str]:
+def body_from_camera(tf: TfBuffer, body: str | None, frame: str) -> tuple[F64, str]:
     """(4, 4) body_from_camera and the body's name; the identity and "" when tf has none."""
     if body is None or not frame:
         return np.eye(4), ""
@@ -344,6 +344,7 @@ __all__ = [
     "CAMERA_INFO_MODELS",
     "CameraInfo",
     "StereoCalibration",
+    "body_from_camera",
     "calibrate_stereo",
     "read_camera_info",
 ]

@@ -94,6 +94,8 @@ class VisualSlam(PipelineBase):
         # Images wait here, in a visual-inertial run, until the IMU has a sample at or after
         # their stamp (so that the same samples are known whatever the threads).
         self._waiting: list[AnyFrame] = []
+        self.imu_unused = ""
+        """Why an input's IMU was not used, when it was not (``metrics.imu_unused``)."""
         self.loops = LoopClosing(shared, self.mapper, self.ba)
         self.loops.inertial = self.inertial
         self._features = Prefetch(self.rig.extract, ahead=cfg.threads == 2, name="orb")
@@ -149,7 +151,13 @@ class VisualSlam(PipelineBase):
         settings = info.details.get("imu")
         if not ImuNoise.has_settings(settings):
             # An accelerometer alone (TUM's), or an IMU whose noise is not given.
-            log.info("%s: the IMU's noise settings are unknown: the run is visual only", info.path)
+            if all(s.name == "accelerometer" for s in info.streams if s.kind == "imu"):
+                return kinds
+            self.imu_unused = (
+                "the IMU's noise settings are unknown: the run is visual only (give the IMU's "
+                "Kalibr imu.yaml with --calib)"
+            )
+            log.warning("%s: %s", info.path, self.imu_unused)
             return kinds
         assert isinstance(settings, dict)
         self.inertial.check(info.details.get("imu_check"), _frame_interval(info))
@@ -519,6 +527,7 @@ class VisualSlam(PipelineBase):
                 "loop_closures": self.loops.records,
                 "doubts": self._doubts(counts, main),
                 **({"inertial": self._inertial_record(main)} if self.inertial.enabled else {}),
+                **({"imu_unused": self.imu_unused} if self.imu_unused else {}),
             },
             counts=counts,
             imu_states=self.inertial.table(main),
