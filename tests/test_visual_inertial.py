@@ -9,6 +9,7 @@ import json
 import math
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -28,10 +29,22 @@ def _run(folder: Path, out: Path, **settings: object) -> RunOutcome:
     return run_pipeline(folder, "visual", out, config=VisualConfig(**settings))  # type: ignore[arg-type]
 
 
+class Shared:
+    """A shared run (``conftest.shared_run``) as these tests read it."""
+
+    def __init__(self, run: Any) -> None:
+        assert run.exception is None, run.traceback
+        assert run.exit_code == 0, run.output
+        self.run_dir: Path = run.out
+        self.record = json.loads((run.out / "run.json").read_text())
+        self.evaluation = self.record["metrics"]["evaluation"]["alignment"]
+
+
 @pytest.fixture(scope="session")
-def mh05(tmp_path_factory: pytest.TempPathFactory) -> RunOutcome:
-    """One monocular-inertial run over the MH_05 excerpt, read by several tests."""
-    return _run(shared_path("vi", "euroc_MH05_a"), tmp_path_factory.mktemp("mh05") / "run")
+def mh05(shared_run: Any) -> Shared:
+    """One monocular-inertial run over the MH_05 excerpt, read by several tests: the docs'
+    first visual-inertial example, made once per session."""
+    return Shared(shared_run("run", "visual", shared_path("vi", "euroc_MH05_a")))
 
 
 @pytest.fixture(scope="session")
@@ -39,11 +52,11 @@ def mh05_truth() -> object:
     return EurocSource(shared_path("vi", "euroc_MH05_a")).groundtruth()
 
 
-def _record(outcome: RunOutcome) -> dict:
+def _record(outcome: RunOutcome | Shared) -> dict:
     return json.loads((outcome.run_dir / "run.json").read_text())
 
 
-def test_mh05_initialises_in_flight_within_4_s(mh05: RunOutcome) -> None:
+def test_mh05_initialises_in_flight_within_4_s(mh05: Shared) -> None:
     inertial = _record(mh05)["metrics"]["inertial"]
     assert inertial["initialised"]
     first = inertial["events"][0]
@@ -53,7 +66,7 @@ def test_mh05_initialises_in_flight_within_4_s(mh05: RunOutcome) -> None:
     assert first["scale"] > 0 and first["scale_std"] <= 0.05
 
 
-def test_mh05_metric_trajectory(mh05: RunOutcome, mh05_truth: object) -> None:
+def test_mh05_metric_trajectory(mh05: Shared, mh05_truth: object) -> None:
     """SE(3) ATE (no scale fitted) at most 0.08 m, Sim(3) scale within 3 % of 1, at least
     95 % of the frames posed, scored as a metric (se3) run."""
     assert mh05.evaluation == "se3"
@@ -69,7 +82,7 @@ def test_mh05_metric_trajectory(mh05: RunOutcome, mh05_truth: object) -> None:
     assert tilt <= 2.0
 
 
-def test_mh05_imu_outputs(mh05: RunOutcome, mh05_truth: object) -> None:
+def test_mh05_imu_outputs(mh05: Shared, mh05_truth: object) -> None:
     """imu_states.csv has one row per keyframe, velocities near the ground truth's and the
     gyroscope bias near EuRoC's estimate; the report has its IMU panel's data."""
     path = mh05.run_dir / "imu_states.csv"
@@ -97,20 +110,23 @@ def test_mh05_imu_outputs(mh05: RunOutcome, mh05_truth: object) -> None:
     assert len(record["metrics"]["inertial"]["final_gyro_bias"]) == 3
 
 
-def test_mh05_without_imu_is_the_visual_run(tmp_path: Path) -> None:
+def test_mh05_without_imu_is_the_visual_run(shared_run: Any) -> None:
     """``imu=false``: no IMU read, no inertial record, scored after a similarity (sim3)."""
-    outcome = _run(shared_path("vi", "euroc_MH05_a"), tmp_path / "run", imu=False)
+    outcome = Shared(
+        shared_run("run", "visual", shared_path("vi", "euroc_MH05_a"), "--set", "imu=false")
+    )
     assert outcome.evaluation == "sim3"
     record = _record(outcome)
     assert "inertial" not in record["metrics"]
     assert not (outcome.run_dir / "imu_states.csv").exists()
 
 
-def test_v1_01_stereo_inertial_from_rest(tmp_path: Path) -> None:
+def test_v1_01_stereo_inertial_from_rest(shared_run: Any) -> None:
     """The drone sits on the floor for the whole excerpt: the IMU is initialised at rest,
-    every pair is posed, ATE at most 2 mm."""
+    every pair is posed, ATE at most 2 mm (the docs' stereo example, made once per session)."""
     folder = shared_path("stereo", "euroc_V1_01_micro")
-    outcome = _run(folder, tmp_path / "run")
+    truth_file = folder / "groundtruth_body.txt"
+    outcome = Shared(shared_run("run", "visual", folder, "--groundtruth", truth_file))
     inertial = _record(outcome)["metrics"]["inertial"]
     assert inertial["initialised"]
     estimate = read_trajectory(outcome.run_dir / "trajectory.tum")

@@ -73,26 +73,29 @@ def test_imu_clock_off_the_camera_is_refused(tmp_path: Path) -> None:
     assert "clock" in res.output and "imu0/data.csv" in res.output
 
 
-@pytest.mark.parametrize("damage", ["duplicates", "gap", "saturated"])
-def test_lost_imu_data_finishes_with_exit_3(tmp_path: Path, damage: str) -> None:
-    """The run uses what is left, says what was lost, and exits 3."""
+def test_lost_imu_data_finishes_with_exit_3(tmp_path: Path) -> None:
+    """Repeated stamps, a gap and a clipped gyroscope in one log: the run uses what is left,
+    names each loss, and exits 3."""
     folder = _copy(tmp_path)
     header, rows = _imu(folder)
-    middle = len(rows) // 2
-    if damage == "duplicates":
-        rows = np.concatenate([rows[:middle], rows[middle - 10 : middle], rows[middle:]])
-    elif damage == "gap":
-        rows = np.concatenate([rows[:middle], rows[middle + 30 :]])  # 0.15 s without samples
-    else:
-        top = np.percentile(rows[:, 1], 95)
-        rows[:, 1] = np.minimum(rows[:, 1], top)  # the gyroscope's x clipped at its range
+    quarter, middle = len(rows) // 4, len(rows) // 2
+    top = np.percentile(rows[:, 1], 95)
+    rows[:, 1] = np.minimum(rows[:, 1], top)  # the gyroscope's x clipped at its range
+    rows = np.concatenate(
+        [
+            rows[:quarter],
+            rows[quarter - 10 : quarter],  # ten samples written twice
+            rows[quarter:middle],
+            rows[middle + 30 :],  # 0.15 s without samples
+        ]
+    )
     _write_imu(folder, header, rows)
     res = _run(folder, tmp_path)
     assert res.exit_code == 3, res.output
     assert "the input is damaged" in res.output
     lost = _record(tmp_path)["data_loss"]
-    word = {"duplicates": "repeat", "gap": "gap", "saturated": "extreme"}[damage]
-    assert any(word in line for line in lost), lost
+    for word in ("repeat", "gap", "extreme"):
+        assert any(word in line for line in lost), (word, lost)
     # The run itself went through, metric.
     assert _record(tmp_path)["metrics"]["inertial"]["initialised"]
 
