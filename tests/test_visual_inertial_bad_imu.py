@@ -100,6 +100,22 @@ def test_lost_imu_data_finishes_with_exit_3(tmp_path: Path) -> None:
     assert _record(tmp_path)["metrics"]["inertial"]["initialised"]
 
 
+def test_imu_clock_a_frame_and_a_half_off_is_found_from_the_motion(tmp_path: Path) -> None:
+    """The IMU's stamps 75 ms late (a frame and a half at 20 Hz): every image still has IMU
+    samples around it, so the stamps cannot show it; the map's turns against the gyroscope's
+    do, and the refusal says by how much and what to give."""
+    folder = _copy(tmp_path)
+    header, rows = _imu(folder)
+    rows[:, 0] += 75e6
+    _write_imu(folder, header, rows)
+    res = _run(folder, tmp_path)
+    inertial = _record(tmp_path)["metrics"]["inertial"]
+    assert not inertial["initialised"]
+    assert 0.06 <= inertial["clock_offset"]["shift_s"] <= 0.09, inertial
+    assert "timeshift_cam_imu" in inertial["last_refusal"] and "late" in inertial["last_refusal"]
+    assert "timeshift_cam_imu" in res.output  # the doubt, on the terminal too
+
+
 @pytest.mark.parametrize("damage", ["missing", "not a rotation"])
 def test_bad_camera_imu_transform_is_refused(tmp_path: Path, damage: str) -> None:
     folder = _copy(tmp_path)

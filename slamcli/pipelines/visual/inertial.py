@@ -29,6 +29,7 @@ from numpy.typing import NDArray
 
 from slamcli.errors import InputError
 from slamcli.geometry import inverse
+from slamcli.inertial.clock import ClockOffset, estimate_clock_offset
 from slamcli.inertial.preintegration import ImuNoise, bias_of, integrate, interval_readings
 from slamcli.pipelines.visual.atlas import Keyframe
 from slamcli.pipelines.visual.parts import Part, Shared
@@ -93,6 +94,10 @@ class Inertial(Part):
         self.dropped = 0
         self.last_refusal = ""
         self.data_loss: list[str] = []
+        self.clock: ClockOffset | None = None
+        """The IMU clock's offset from the camera's, estimated when an initialisation is
+        refused (:mod:`slamcli.inertial.clock`)."""
+        self._frame_s = 0.05
 
     # -- samples ------------------------------------------------------------------------------
 
@@ -148,6 +153,8 @@ class Inertial(Part):
             InputError: the gyroscope looks like deg/s, the accelerometer is not in m/s², or
                 the IMU's clock is off the camera's (most images outside its span).
         """
+        if frame_s:
+            self._frame_s = float(frame_s)
         if not report:
             return
         where = report.get("where", "the IMU")
@@ -193,6 +200,19 @@ class Inertial(Part):
         if stuck:
             lost.append(f"{where}: {stuck} sample(s) stuck at their axis' extreme (saturated)")
         self.data_loss = lost
+
+    def _clock_offset(self, map_id: int) -> ClockOffset | None:
+        """The IMU clock's offset estimated on the keyframes of map ``map_id`` (kept in
+        :attr:`clock`)."""
+        kfs = self.map.live(map_id)
+        if len(kfs) < 3:
+            return None
+        r_bc = self.rig.body_from_camera[:3, :3]
+        world_from_body = np.stack([k.cam_from_world[:3, :3].T @ r_bc.T for k in kfs])
+        t, gyro, _ = self.samples()
+        stamps = np.array([k.stamp_ns for k in kfs], dtype=np.int64)
+        self.clock = estimate_clock_offset(stamps, world_from_body, t, gyro)
+        return self.clock
 
     def samples(self) -> tuple[I64, F64, F64]:
         """The samples so far: stamps (ns), gyro (rad/s), accel (m/s²)."""
@@ -401,6 +421,15 @@ class Inertial(Part):
         self.stats.counts["imu_init_attempts"] += 1
         if init is None:
             self.last_refusal = refusals[-1] if refusals else ""
+            clock = self._clock_offset(map_id)
+            if clock is not None and clock.significant(self._frame_s):
+                late = "late" if clock.shift_s > 0 else "early"
+                self.last_refusal = (
+                    f"the IMU's clock looks {abs(clock.shift_s) * 1e3:.0f} ms {late} against the "
+                    f"camera's (the gyroscope's turns fit the map's {clock.gain:.1f} times "
+                    "better shifted so): give the camera-IMU time offset as Kalibr's "
+                    f"timeshift_cam_imu: {clock.shift_s:.3f} in a camchain with --calib"
+                )
             return None
         self.inits[map_id] = init
         for k, v in zip(kfs, init.velocities, strict=True):

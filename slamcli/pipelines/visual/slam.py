@@ -30,6 +30,7 @@ scores and reasons.
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from typing import Any
@@ -437,9 +438,10 @@ class VisualSlam(PipelineBase):
     def _inertial_record(self, main: int | None) -> dict[str, Any]:
         """The IMU's part of ``run.json``: whether the main map was initialised, the
         initialisations and refinements (when, scale, gravity, biases), and the last
-        keyframe's bias estimate."""
+        keyframe's bias estimate, and the IMU clock's offset when a refusal estimated it."""
         chain = self.inertial.chain(main) if main is not None else []
         last = self.inertial.states[chain[-1].id] if chain else None
+        clock = self.inertial.clock
         return {
             "initialised": main is not None and self.inertial.active(main),
             "attempts": self.inertial.attempts,
@@ -447,6 +449,7 @@ class VisualSlam(PipelineBase):
             "events": self.inertial.records,
             "final_gyro_bias": None if last is None else [round(float(x), 7) for x in last[3:6]],
             "final_accel_bias": None if last is None else [round(float(x), 6) for x in last[6:9]],
+            "clock_offset": None if clock is None else dataclasses.asdict(clock),
         }
 
     def _doubts(self, counts: dict[str, int], main: int | None = None) -> list[str]:
