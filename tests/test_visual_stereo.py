@@ -312,11 +312,23 @@ def test_a_bare_ros1_bag_runs_visual_inertial_on_the_kalibr_files(
     calib = (str(euroc_logs["camchain"]), str(euroc_logs["imu"]))
     gt = shared_path(*EUROC) / "groundtruth_body.txt"
     options = {"calib": calib, "groundtruth": str(gt)}
+    with open_source(euroc_logs["bare"], calib=list(calib)) as bare:
+        chosen = bare.info().details["stereo_topics_chosen"]
+    assert chosen == f"the rostopic of {euroc_logs['camchain']}"
     outcome = run_pipeline(euroc_logs["bare"], "visual", tmp_path / "run", source_options=options)
     assert outcome.result.metrics["inertial"]["initialised"]
     assert len(outcome.result.trajectory) == 95
     assert outcome.metrics["evaluation"]["ate"]["rmse"] < 0.002
     assert _same_trajectory(outcome, euroc_run) < 1e-6
+
+
+def test_info_deep_lines_a_logs_imu_up_with_its_images(euroc_logs: dict[str, Path]) -> None:
+    # The pairs --deep reads give the images' header stamps the IMU's are checked against.
+    with open_source(euroc_logs["mcap"]) as log:
+        check = log.info(deep=True).details["imu_check"]
+    assert check["images"] == 95
+    assert check["camera_offset_s"] == 0.0 and check["uncovered_images"] == 0
+    assert check["imu_after_last_image_s"] == pytest.approx(1.0, abs=0.01)
 
 
 def test_a_bag_imu_without_a_noise_model_is_named_and_left_out(

@@ -217,6 +217,7 @@ class McapSource(SourceBase):
         self._camera: tuple[PinholeCamera, str] | None = None
         self._stereo: StereoSetup | None = None
         self._frame_stamps: list[int] = []
+        self._images_read: list[int] = []
         self._motion_stamps: list[int] = []
         self._decoders: dict[str, tuple[Callable[[bytes], Any], Adapter]] = {}
         self.calib = read_kalibr(tuple(calib)) if calib else None
@@ -826,8 +827,9 @@ class McapSource(SourceBase):
         stamps in log order, gaps, rate, units, saturation), read in one pass over that topic
         alone (``info --deep``: a run opens its source with ``info`` and need not read the
         topic twice). Samples without both a gyroscope and an accelerometer reading are left
-        out of the checks and counted. How the IMU's time lines up with the camera's is left
-        to the run: the images' header stamps need every image decoded."""
+        out of the checks and counted. How the IMU's time lines up with the camera's is checked
+        on the header stamps of the images ``--deep`` has read (the stereo pairs' left images,
+        or the RGB-D pairs' colour ones)."""
         from slamcli.formats.imu_checks import check_imu
 
         topic = self.topic("imu", required=False)
@@ -851,10 +853,12 @@ class McapSource(SourceBase):
                 f"{topic}: {partial} sample(s), none with both a gyroscope and an "
                 "accelerometer reading: a visual-inertial run needs both"
             ]
+        images = self._images_read
         report = check_imu(
             np.asarray(stamps, dtype=np.int64),
             np.asarray(gyro, dtype=np.float64).reshape(-1, 3),
             np.asarray(accel, dtype=np.float64).reshape(-1, 3),
+            camera_stamps_ns=np.asarray(images, dtype=np.int64) if images else None,
             where=topic,
         )
         details = {"imu_topic": topic, "imu_check": report.to_dict()}
@@ -880,6 +884,7 @@ class McapSource(SourceBase):
         reader = ((lambda: self.frames(("stereo",))), self.stats) if deep else None
         want = (self._want, self.max_dt_ns)
         out = stereo_info(self.path, self._topics, want, self.log, self._stereo_setup, reader)
+        self._images_read = list(self._frame_stamps)
         self._frame_stamps = []
         return out
 
@@ -892,6 +897,7 @@ class McapSource(SourceBase):
                 n += 1
                 if progress:
                     progress(n, None)
+            self._images_read = list(self._frame_stamps)
             self._frame_stamps = []
             return n
         times: dict[str, list[int]] = {rgb: [], depth: []}

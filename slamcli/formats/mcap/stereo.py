@@ -184,6 +184,8 @@ def open_stereo(
     """
     topics = choose_stereo_topics(path, chooser, want.get("left"), want.get("right"))
     if calib is not None and calib.cameras:
+        if calib.camera_topics[:2] == (topics.left, topics.right):
+            topics = StereoTopics(topics.left, topics.right, f"the rostopic of {calib.chain_path}")
         index = TfIndex.read(transforms())
         body = body_frame(index.frames(), _odometry_children(chooser, first_readable))
         first = first_readable(topics.left)
@@ -480,6 +482,8 @@ def stereo_info(
     )
     try:
         s = setup()
+        topics = s.topics  # how they were chosen, as the run reads them
+        out.details["stereo_topics_chosen"] = topics.how
         rig = s.calibration.rig
         out.camera, out.camera_source = rig.camera, s.calibration.method
         out.details.update(
