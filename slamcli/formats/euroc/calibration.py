@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -268,6 +269,29 @@ def check_rigid(p: Path, key: str, t: F64, hint: str) -> F64:
     return t
 
 
+def check_pinhole(
+    p: Path, size: F64, intrinsics: F64, name: Callable[[str], str]
+) -> tuple[int, int, float, float, float, float]:
+    """A pinhole camera's ``resolution`` [w, h] and ``intrinsics`` [fu, fv, cu, cv], checked:
+    whole pixel counts of a size images may have, and positive focal lengths.
+
+    Raises:
+        FormatError: they are not (names the file, and the key as ``name(key)`` writes it).
+    """
+    if np.any(size <= 0) or np.any(size != np.round(size)):
+        raise FormatError(
+            p, f"{name('resolution')}: expected two pixel counts, found {size.tolist()}"
+        )
+    width, height = int(size[0]), int(size[1])
+    problem = size_problem(width, height)
+    if problem:
+        raise FormatError(p, f"{name('resolution')}: the camera {problem}")
+    fu, fv, cu, cv = (float(v) for v in intrinsics)
+    if fu <= 0 or fv <= 0:
+        raise FormatError(p, f"{name('intrinsics')}: focal lengths must be > 0, found {fu}, {fv}")
+    return width, height, fu, fv, cu, cv
+
+
 def read_camera_sensor(path: str | Path) -> CameraSensor:
     """A camera's ``sensor.yaml`` (see the module docstring).
 
@@ -284,16 +308,12 @@ def read_camera_sensor(path: str | Path) -> CameraSensor:
             f"key 'camera_model': expected 'pinhole', found {model_name!r}",
             hint="only pinhole cameras (radial-tangential or equidistant distortion) are read",
         )
-    size = _floats(p, data, "resolution", (2,), _CAMERA_HINT)
-    if np.any(size <= 0) or np.any(size != np.round(size)):
-        raise FormatError(p, f"key 'resolution': expected two pixel counts, found {size.tolist()}")
-    width, height = int(size[0]), int(size[1])
-    problem = size_problem(width, height)
-    if problem:
-        raise FormatError(p, f"key 'resolution': the camera {problem}")
-    fu, fv, cu, cv = _floats(p, data, "intrinsics", (4,), _CAMERA_HINT).tolist()
-    if fu <= 0 or fv <= 0:
-        raise FormatError(p, f"key 'intrinsics': focal lengths must be > 0, found {fu}, {fv}")
+    width, height, fu, fv, cu, cv = check_pinhole(
+        p,
+        _floats(p, data, "resolution", (2,), _CAMERA_HINT),
+        _floats(p, data, "intrinsics", (4,), _CAMERA_HINT),
+        lambda key: f"key {key!r}",
+    )
     given = str(_require(p, data, "distortion_model", _CAMERA_HINT))
     model = DISTORTION_MODELS.get(given.lower())
     if model is None:

@@ -42,11 +42,11 @@ from slamcli.formats.euroc.calibration import (
     _floats,
     _number,
     _require,
+    check_pinhole,
     check_rigid,
     read_sensor_yaml,
     rectify_stereo,
 )
-from slamcli.formats.images import size_problem
 from slamcli.geometry.se3 import inverse
 from slamcli.types import PinholeCamera
 
@@ -222,17 +222,12 @@ def _read_camera(p: Path, cam: str, data: dict[str, Any]) -> tuple[PinholeCamera
             hint="only pinhole cameras (radtan or equidistant distortion) are read; "
             "calibrate with Kalibr's pinhole-radtan or pinhole-equi model",
         )
-    size = _numbers(p, key("resolution"), _require(p, data, "resolution", _CHAIN_HINT), (2,))
-    if np.any(size <= 0) or np.any(size != np.round(size)):
-        raise FormatError(p, f"{key('resolution')}: expected two pixel counts, found {size}")
-    width, height = int(size[0]), int(size[1])
-    problem = size_problem(width, height)
-    if problem:
-        raise FormatError(p, f"{key('resolution')}: the camera {problem}")
-    intrinsics = _require(p, data, "intrinsics", _CHAIN_HINT)
-    fu, fv, cu, cv = _numbers(p, key("intrinsics"), intrinsics, (4,)).tolist()
-    if fu <= 0 or fv <= 0:
-        raise FormatError(p, f"{key('intrinsics')}: focal lengths must be > 0, found {fu}, {fv}")
+    width, height, fu, fv, cu, cv = check_pinhole(
+        p,
+        _numbers(p, key("resolution"), _require(p, data, "resolution", _CHAIN_HINT), (2,)),
+        _numbers(p, key("intrinsics"), _require(p, data, "intrinsics", _CHAIN_HINT), (4,)),
+        key,
+    )
     given = str(data.get("distortion_model", "none")).lower()
     if given == "none":
         model, coefficients = RADTAN, (0.0, 0.0, 0.0, 0.0)
