@@ -133,6 +133,15 @@ class ImuSensor:
         """The noise settings by their ASL names (for ``info``)."""
         return {key: float(getattr(self, key)) for key in IMU_NOISE_KEYS}
 
+    def details(self) -> dict[str, Any]:
+        """What a source's ``info`` gives as ``details["imu"]``: ``rate_hz``, the noise
+        settings and ``body_from_imu``."""
+        return {
+            "rate_hz": self.rate_hz,
+            **self.noise(),
+            "body_from_imu": self.body_from_sensor.tolist(),
+        }
+
 
 @dataclass(frozen=True)
 class StereoRectification:

@@ -736,11 +736,7 @@ class EurocSource(SourceBase):
         else:
             streams.append(StreamInfo.from_stamps("imu0", "imu", imu[0], "mav0/imu0/data.csv"))
         if self.imu_sensor is not None:
-            details["imu"] = (
-                {"rate_hz": self.imu_sensor.rate_hz}
-                | self.imu_sensor.noise()
-                | {"body_from_imu": self.imu_sensor.body_from_sensor.tolist()}
-            )
+            details["imu"] = self.imu_sensor.details()
         elif imu is not None:
             problems.append("no imu0/sensor.yaml: the IMU noise settings are unknown")
         if imu is not None:

@@ -746,41 +746,24 @@ class McapSource(SourceBase):
         )
 
     def _imu_settings(self, body_frame: str | None) -> dict[str, Any]:
-        """The IMU's noise model and mounting, for a visual-inertial run: ``{"imu": {...}}``
-        (the keys of :meth:`slamcli.formats.euroc.ImuSensor.noise`, ``rate_hz`` and
-        ``body_from_imu``) when a Kalibr ``imu.yaml`` was given (``--calib``) or the IMU
-        channel's metadata holds its noise model (as slamcli's stereo logs write it:
-        ``sensor_msgs/Imu`` has no field for it, and a ROS 1 bag no channel metadata), and the
-        IMU is placed on the rig's body (by the Kalibr chain, or by ``/tf_static``); else
-        nothing (the run is visual).
-
-        Raises:
-            InputError: the metadata names a frame tf cannot place on the body; a Kalibr IMU
-                that nothing places.
-        """
-        from slamcli.formats.euroc.calibration import IMU_NOISE_KEYS
+        """The IMU's noise model and mounting for a visual-inertial run (see
+        :func:`~slamcli.formats.mcap.imu_topic.imu_settings`)."""
+        from slamcli.formats.mcap.imu_topic import imu_settings
 
         topic = self.topic("imu", required=False)
         if topic is None:
             return {}
-        if self.calib is not None and self.calib.imu is not None:
-            return {"imu": self._calib_imu_settings(topic, body_frame)}
-        if not body_frame:
-            return {}
-        meta = dict(self._channels[topic].metadata)
-        if not all(key in meta for key in IMU_NOISE_KEYS):
-            return {}
-        try:
-            settings: dict[str, Any] = {key: float(meta[key]) for key in IMU_NOISE_KEYS}
-            settings["rate_hz"] = float(meta.get("rate_hz", "200"))
-        except ValueError as exc:
-            raise InputError(
-                f"{topic}: the channel's noise metadata is not a number ({exc})"
-            ) from None
-        frame = meta.get("frame_id", "")
-        if frame and frame != body_frame:
-            settings["body_from_imu"] = self._tf_body_from(body_frame, frame).tolist()
-        return {"imu": settings}
+
+        def message_frame() -> str:
+            for raw in self.log.messages([topic]):
+                header = getattr(decoder_for(raw.channel)(raw.data), "header", None)
+                return str(getattr(header, "frame_id", "") or "").lstrip("/")
+            return ""
+
+        metadata = dict(self._channels[topic].metadata)
+        return imu_settings(
+            topic, metadata, body_frame, self.calib, self._tf_body_from, message_frame
+        )
 
     def _tf_body_from(self, body_frame: str, frame: str) -> NDArray[np.float64]:
         """(4, 4) pose of ``frame`` on the body, from tf at its first stamp.
@@ -795,76 +778,19 @@ class McapSource(SourceBase):
         stamp = min(firsts) if firsts else 0
         return index.buffer.lookup(body_frame, frame, stamp)
 
-    def _calib_imu_settings(self, topic: str, body_frame: str | None) -> dict[str, Any]:
-        """The IMU of a Kalibr ``imu.yaml``, placed by the camera chain (the body is the IMU)
-        or else by tf: the IMU messages' frame on the body.
-
-        Raises:
-            InputError: neither places it.
-        """
-        calib = self.calib
-        assert calib is not None and calib.imu is not None
-        placed = None
-        if not calib.imu_placed and body_frame:
-            frame = ""
-            for raw in self.log.messages([topic]):
-                header = getattr(decoder_for(raw.channel)(raw.data), "header", None)
-                frame = str(getattr(header, "frame_id", "") or "").lstrip("/")
-                break
-            if frame:
-                try:
-                    placed = self._tf_body_from(body_frame, frame)
-                except InputError:
-                    placed = None
-        imu = calib.imu_on_body(placed)
-        assert imu is not None
-        settings: dict[str, Any] = {"rate_hz": imu.rate_hz, **imu.noise()}
-        settings["body_from_imu"] = imu.body_from_sensor.tolist()
-        return settings
-
     def _imu_info(self) -> tuple[dict[str, Any], list[str]]:
-        """The IMU topic's checks (:func:`~slamcli.formats.imu_checks.check_imu`: header
-        stamps in log order, gaps, rate, units, saturation), read in one pass over that topic
-        alone (``info --deep``: a run opens its source with ``info`` and need not read the
-        topic twice). Samples without both a gyroscope and an accelerometer reading are left
-        out of the checks and counted. How the IMU's time lines up with the camera's is checked
-        on the header stamps of the images ``--deep`` has read (the stereo pairs' left images,
-        or the RGB-D pairs' colour ones)."""
-        from slamcli.formats.imu_checks import check_imu
+        """The IMU topic's checks (:func:`~slamcli.formats.mcap.imu_topic.check_imu_topic`),
+        read in one pass over that topic alone (``info --deep``: a run opens its source with
+        ``info`` and need not read the topic twice), lined up with the header stamps of the
+        images ``--deep`` has read (the stereo pairs' left images, or the RGB-D pairs' colour
+        ones)."""
+        from slamcli.formats.mcap.imu_topic import check_imu_topic
 
         topic = self.topic("imu", required=False)
         if topic is None:
             return {}, []
-        stamps: list[int] = []
-        gyro: list[NDArray[np.float64]] = []
-        accel: list[NDArray[np.float64]] = []
-        partial = 0
-        for _, rec in self._records([topic]):
-            if not isinstance(rec, ImuFrame):
-                continue
-            if rec.gyro_radps is None or rec.accel_mps2 is None:
-                partial += 1
-                continue
-            stamps.append(rec.stamp_ns)
-            gyro.append(rec.gyro_radps)
-            accel.append(rec.accel_mps2)
-        if partial and not stamps:
-            return {"imu_topic": topic, "imu_partial_samples": partial}, [
-                f"{topic}: {partial} sample(s), none with both a gyroscope and an "
-                "accelerometer reading: a visual-inertial run needs both"
-            ]
-        images = self._images_read
-        report = check_imu(
-            np.asarray(stamps, dtype=np.int64),
-            np.asarray(gyro, dtype=np.float64).reshape(-1, 3),
-            np.asarray(accel, dtype=np.float64).reshape(-1, 3),
-            camera_stamps_ns=np.asarray(images, dtype=np.int64) if images else None,
-            where=topic,
-        )
-        details = {"imu_topic": topic, "imu_check": report.to_dict()}
-        if partial:
-            details["imu_partial_samples"] = partial
-        return details, list(report.problems)
+        records = (rec for _, rec in self._records([topic]))
+        return check_imu_topic(topic, records, self._images_read)
 
     def _scan_info(self, deep: bool) -> tuple[dict[str, Any], list[str]]:
         """Details and problems of the scans (:meth:`ScanMounter.info`); with ``deep`` every
