@@ -38,7 +38,15 @@ from slamcli.planning.car_motion import (
     simulate_bicycle,
     time_parameterise_car,
 )
-from slamcli.planning.costmap import OCCUPIED_THRESH, nearest_free_cell, uv_to_world, world_to_uv
+from slamcli.planning.costmap import (
+    CENTRING_RADIUS_M,
+    OCCUPIED_THRESH,
+    centring_cost,
+    clearance_ratio,
+    nearest_free_cell,
+    uv_to_world,
+    world_to_uv,
+)
 from slamcli.planning.footprint import Footprint, FootprintChecker
 from slamcli.planning.tracker import TrackerSettings, TrackingResult
 from slamcli.types import OccupancyGrid
@@ -51,6 +59,9 @@ CLEARANCE_LADDER_M = (0.10, 0.05, 0.02)
 
 N_HEADINGS = 72
 """Heading bins of the lattice (5 degrees)."""
+
+COST_PENALTY = 8.0
+"""Default weight of the centring cost (see :class:`CarSettings`)."""
 
 
 @dataclass(frozen=True)
@@ -68,6 +79,11 @@ class CarSettings:
         reverse_weight: cost factor of reversing (2, as Nav2's Smac planner).
         switch_penalty_m: cost of a gear change, metres.
         max_expanded: expansion cap of the search.
+        cost_penalty: weight of the centring cost (:func:`~slamcli.planning.costmap.
+            centring_cost`): a metre driven where the cost is c costs ``1 + cost_penalty * c``
+            metres. 0 gives the shortest path.
+        inflation_radius_m: how far around a point the centring cost looks for the middle of
+            the free space, metres.
     """
 
     footprint: Footprint
@@ -80,6 +96,8 @@ class CarSettings:
     reverse_weight: float = 2.0
     switch_penalty_m: float = 1.0
     max_expanded: int = 3_000_000
+    cost_penalty: float = COST_PENALTY
+    inflation_radius_m: float = CENTRING_RADIUS_M
 
     def checked(self) -> CarSettings:
         if not (math.isfinite(self.min_turn_radius_m) and self.min_turn_radius_m > 0):
@@ -92,6 +110,18 @@ class CarSettings:
             raise ConfigError(
                 f"--reverse-penalty must be a number >= 1, got {self.reverse_weight!r}",
                 hint="1 gives the shortest path; larger values prefer driving forwards",
+            )
+        if not (math.isfinite(self.cost_penalty) and self.cost_penalty >= 0.0):
+            raise ConfigError(
+                f"--cost-penalty must be a number >= 0, got {self.cost_penalty!r}",
+                hint="0 gives the shortest path; larger values keep the path nearer the middle "
+                "of the free space",
+            )
+        if not (math.isfinite(self.inflation_radius_m) and self.inflation_radius_m > 0.0):
+            raise ConfigError(
+                f"--inflation-radius must be a positive number of metres, got "
+                f"{self.inflation_radius_m!r}",
+                hint=f"for example --inflation-radius {CENTRING_RADIUS_M}",
             )
         if self.unknown not in ("blocked", "free"):
             raise ConfigError(
@@ -112,6 +142,9 @@ class CarPlanResult:
         curvature: (N,) signed curvature (1/m) of the motion leaving each pose.
         search_poses: (K, 3) the lattice nodes of the search path, before smoothing.
         length_m, reversals, min_clearance_m, max_curvature: the path's figures.
+        clearance_ratio: (median, 10th percentile) over the poses of the clearance ratio of
+            their cells (:func:`~slamcli.planning.costmap.clearance_ratio`, over
+            ``inflation_radius_m``): 1 on the middle line of the free space, 0 at a wall.
         profile, trajectory, tracking: the timed path, sampled every ``dt_s``, and the
             simulated robot.
         expanded: search nodes expanded.
@@ -131,6 +164,7 @@ class CarPlanResult:
     length_m: float
     reversals: int
     min_clearance_m: float
+    clearance_ratio: tuple[float, float]
     max_curvature: float
     profile: CarProfile
     trajectory: NDArray[np.float64]
@@ -216,6 +250,8 @@ class _Problem:
     start: tuple[float, float, float]
     goal: tuple[float, float, float]
     holonomic: NDArray[np.float64]
+    cost: NDArray[np.float64] | None
+    ratio: NDArray[np.float64]
     radius: float
     step: float
     bin_size: float
@@ -229,6 +265,7 @@ class _Problem:
             self.holonomic,
             self.start,
             self.goal,
+            cost=self.cost,
             radius=self.radius,
             step=self.step,
             bin_size=self.bin_size,
@@ -292,6 +329,10 @@ def plan_car(
     t4 = time.perf_counter()
     poses, curvature = _checked_world_path(problem, poses_g, curv)
     clearance = checker.clearance(poses)
+    h, w = blocked.shape
+    rows = np.clip(poses_g[:, 1].astype(np.int64), 0, h - 1)
+    cols = np.clip(poses_g[:, 0].astype(np.int64), 0, w - 1)
+    ratio = problem.ratio[rows, cols]
     timings["check"] = _ms(t4)
     t5 = time.perf_counter()
     profile = time_parameterise_car(poses, gears, curvature, limits)
@@ -317,6 +358,7 @@ def plan_car(
         length_m=float(np.hypot(seg[:, 0], seg[:, 1]).sum()),
         reversals=int(np.count_nonzero(np.diff(gears[:-1].astype(np.int64)) != 0)),
         min_clearance_m=float(clearance.min()),
+        clearance_ratio=(float(np.median(ratio)), float(np.percentile(ratio, 10))),
         max_curvature=float(np.abs(curvature).max()),
         profile=profile,
         trajectory=trajectory,
@@ -347,6 +389,10 @@ def _problem(
     h, w = blocked.shape
     goal_cell = (min(max(int(gs[1]), 0), h - 1), min(max(int(gs[0]), 0), w - 1))
     bin_m = settings.bin_m or max(res, settings.min_turn_radius_m / 8.0)
+    ratio = clearance_ratio(blocked, res, settings.inflation_radius_m)
+    cost = None
+    if settings.cost_penalty > 0.0:
+        cost = settings.cost_penalty * centring_cost(ratio)
     return _Problem(
         grid=grid,
         settings=settings,
@@ -355,7 +401,9 @@ def _problem(
         margin=margin,
         start=_to_grid(grid, start),
         goal=gs,
-        holonomic=grid_distances(blocked | inscribed, goal_cell),
+        holonomic=grid_distances(blocked | inscribed, goal_cell, extra_cost=cost),
+        cost=cost,
+        ratio=ratio,
         radius=settings.min_turn_radius_m / res,
         step=(settings.step_m or 1.5 * bin_m) / res,
         bin_size=bin_m / res,
@@ -395,7 +443,12 @@ def _smooth(
 ) -> tuple[NDArray[np.float64], NDArray[np.int8], NDArray[np.float64]]:
     """Analytic shortcuts over the lattice path (``nodes``: its poses and the goal); the final
     path's grid poses, gears and curvatures (1/cells)."""
-    from slamcli.planning.hybrid_astar import sample_pieces, segment_curvatures, shortcut_path
+    from slamcli.planning.hybrid_astar import (
+        pieces_cost,
+        sample_pieces,
+        segment_curvatures,
+        shortcut_path,
+    )
 
     # Piece a reaches node a: a lattice primitive, or (the last) the analytic tail.
     pieces: list[tuple[NDArray[np.float64], NDArray[np.float64]]] = [(np.zeros(0), np.zeros(0))]
@@ -412,16 +465,29 @@ def _smooth(
         signs = np.sign(pieces[a][1][pieces[a][1] != 0]).astype(np.int64)
         if len(signs):
             piece_gears[a] = (signs[0], signs[-1], np.count_nonzero(np.diff(signs)))
+    weight = problem.settings.reverse_weight
+    if problem.cost is None and weight == 1.0:
+        piece_len = np.array([float(np.abs(ln).sum()) for _, ln in pieces])
+    else:
+        piece_len = np.array(
+            [0.0]
+            + [
+                pieces_cost(problem.cost, nodes[a - 1], *pieces[a], weight)
+                for a in range(1, len(nodes))
+            ]
+        )
     keep = shortcut_path(
         problem.checker,
         problem.margin,
         nodes,
-        np.array([float(np.abs(ln).sum()) for _, ln in pieces]),
+        piece_len,
         piece_clear,
         piece_gears,
         radius=problem.radius,
         reverse=problem.settings.reverse,
         min_piece=0.5 * problem.step,
+        cost=problem.cost,
+        reverse_weight=weight,
     )
     return _assemble(nodes, pieces, keep, problem.radius, problem.settings.reverse)
 

@@ -38,6 +38,8 @@ def car_plan_record(result: CarPlanResult, map_file: str | Path | None = None) -
     the round robot), ``start``/``goal`` ([x, y, yaw] m, rad), ``footprint`` (vertices, m),
     ``settings``, ``limits``, ``length_m``, ``reversals`` (gear changes), ``min_clearance_m``
     (footprint to the nearest blocked cell over every pose, capped at 2 m),
+    ``clearance_ratio`` (``median`` and ``p10``, the 10th percentile, over the poses: 1 on the
+    middle line of the free space, 0 at a wall),
     ``max_curvature_per_m`` and ``curvature_limit_per_m`` (1 / min turn radius),
     ``goal_error_m``/``goal_error_deg`` (last pose to the goal), ``expanded``, ``timings_ms``,
     ``trajectory_s``, ``time_to_goal_s``, ``goal_reached``, ``tracking``.
@@ -65,11 +67,17 @@ def car_plan_record(result: CarPlanResult, map_file: str | Path | None = None) -
             "reverse_weight": s.reverse_weight,
             "switch_penalty_m": s.switch_penalty_m,
             "max_expanded": s.max_expanded,
+            "cost_penalty": s.cost_penalty,
+            "inflation_radius_m": s.inflation_radius_m,
         },
         "limits": {k: getattr(result.limits, k) for k in result.limits.__dataclass_fields__},
         "length_m": result.length_m,
         "reversals": result.reversals,
         "min_clearance_m": result.min_clearance_m,
+        "clearance_ratio": {
+            "median": result.clearance_ratio[0],
+            "p10": result.clearance_ratio[1],
+        },
         "max_curvature_per_m": result.max_curvature,
         "curvature_limit_per_m": 1.0 / s.min_turn_radius_m,
         "goal_error_m": err_m,

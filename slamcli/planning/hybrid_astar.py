@@ -231,6 +231,8 @@ def _wrap(t: float) -> float:
 def _search_kernel(
     fp: FootprintTest,
     holo: NDArray[np.float64],
+    cost: NDArray[np.float64],
+    costed: bool,
     start: NDArray[np.float64],
     goal: NDArray[np.float64],
     radius: float,
@@ -283,9 +285,14 @@ def _search_kernel(
         r = min(max(int(y), 0), h - 1)
         c = min(max(int(x), 0), w - 1)
         hol = holo[r, c]
-        # Analytic expansion: always near the goal, every few nodes further away.
-        every = max(1, int(hol / (2.0 * radius)))
-        if expanded % every == 0 or hol <= 2.0 * radius:
+        # Analytic expansion: always near the goal, every few nodes further away. With a
+        # clearance cost, only near the goal: the curve would cut across the cost.
+        if costed:
+            shoot = math.hypot(x - goal[0], y - goal[1]) <= 2.0 * radius
+        else:
+            every = max(1, int(hol / (2.0 * radius)))
+            shoot = expanded % every == 0 or hol <= 2.0 * radius
+        if shoot:
             kinds, lengths = _segments(x, y, t, gx, gy, gt, radius, reverse)
             first, _, _, tidy = _gear_runs(lengths, 0.5 * step)
             # The piece into this node and the curve's first run must not make a shuffle.
@@ -332,6 +339,8 @@ def _search_kernel(
                 if nkey in closed:
                     continue
                 g = gs[i] + step * (reverse_weight if d < 0 else 1.0)
+                if costed:
+                    g += step * (reverse_weight if d < 0 else 1.0) * cost[rr, cc]
                 if gear[i] != 0 and gear[i] != d:
                     g += switch_penalty
                 if nkey in best and best[nkey] <= g:
@@ -386,6 +395,7 @@ def lattice_search(
     start: tuple[float, float, float],
     goal: tuple[float, float, float],
     *,
+    cost: NDArray[np.float64] | None = None,
     radius: float,
     step: float,
     bin_size: float,
@@ -400,11 +410,16 @@ def lattice_search(
     """Run the search of the module doc; all lengths in cells, poses ``(u, v, yaw)``.
 
     ``checker`` tests the footprint; ``holonomic`` (H, W) is the grid distance of every cell to
-    the goal (inf where unreachable).
+    the goal (inf where unreachable), with ``cost`` included when one is given; ``cost`` (H, W)
+    is the clearance cost: a primitive ending in cell c costs ``(1 + cost[c])`` per cell of
+    arc length.
     """
+    costed = cost is not None
     out = _search_kernel(
         footprint_test(checker),
         np.ascontiguousarray(holonomic, dtype=np.float64),
+        np.ascontiguousarray(cost if costed else np.zeros((1, 1)), dtype=np.float64),
+        costed,
         np.asarray(start, dtype=np.float64),
         np.asarray(goal, dtype=np.float64),
         float(radius),
@@ -472,10 +487,47 @@ def sample_pieces(
     )
 
 
+@numba.njit(cache=True, nogil=True)
+def _pieces_cost(
+    cost: NDArray[np.float64],
+    costed: bool,
+    x: float,
+    y: float,
+    t: float,
+    curvatures: NDArray[np.float64],
+    lengths: NDArray[np.float64],
+    reverse_weight: float,
+    spacing: float,
+) -> float:
+    """The search's cost of constant-curvature pieces from ``(x, y, t)``: each stretch of at
+    most ``spacing`` cells costs its length times ``1 + cost`` of the cell at its end, times
+    ``reverse_weight`` when backwards (cells outside the map count as 1; without ``costed``
+    every cell counts 0: the reverse-weighted length)."""
+    h, w = cost.shape
+    total = 0.0
+    for i in range(lengths.shape[0]):
+        length = lengths[i]
+        if length == 0.0:
+            continue
+        n = max(1, math.ceil(abs(length) / spacing))
+        weight = reverse_weight if length < 0.0 else 1.0
+        for k in range(1, n + 1):
+            px, py, _ = _advance(x, y, t, curvatures[i], length * k / n)
+            c = 0.0
+            if costed:
+                c = cost[int(py), int(px)] if 0.0 <= px < w and 0.0 <= py < h else 1.0
+            total += abs(length) / n * weight * (1.0 + c)
+        x, y, t = _advance(x, y, t, curvatures[i], length)
+    return total
+
+
 @numba.njit(cache=True)
 def _shortcut_kernel(
     fp: FootprintTest,
     fp_margin: FootprintTest,
+    cost: NDArray[np.float64],
+    costed: bool,
+    reverse_weight: float,
     nodes: NDArray[np.float64],
     piece_len: NDArray[np.float64],
     piece_clear: NDArray[np.bool_],
@@ -487,8 +539,9 @@ def _shortcut_kernel(
     min_piece: float,
 ) -> NDArray[np.int64]:
     """Greedy shortcuts between lattice nodes: from each kept node, the farthest node within
-    ``window`` whose analytic curve is shorter than the path between them, changes gear no
-    more often, makes no short shuffle, and is free (with the margin footprint where the
+    ``window`` whose analytic curve is cheaper than the path between them by
+    :func:`_pieces_cost` (shorter, when neither a cost nor a reverse weight applies), changes
+    gear no more often, makes no short shuffle, and is free (with the margin footprint where the
     replaced pieces were all free with it)."""
     k = nodes.shape[0]
     keep = np.zeros(k, dtype=np.int64)
@@ -512,9 +565,25 @@ def _shortcut_kernel(
                 radius,
                 reverse,
             )
-            total = 0.0
-            for s in range(lengths.shape[0]):
-                total += abs(lengths[s])
+            if costed or reverse_weight != 1.0:
+                kappas = np.empty(kinds.shape[0])
+                for s in range(kinds.shape[0]):
+                    kappas[s] = kinds[s] / radius
+                total = _pieces_cost(
+                    cost,
+                    costed,
+                    nodes[i, 0],
+                    nodes[i, 1],
+                    nodes[i, 2],
+                    kappas,
+                    lengths,
+                    reverse_weight,
+                    spacing,
+                )
+            else:
+                total = 0.0
+                for s in range(lengths.shape[0]):
+                    total += abs(lengths[s])
             if total >= cum[j] - cum[i] - 1e-9:
                 continue
             first, last, switches, tidy = _gear_runs(lengths, min_piece)
@@ -561,6 +630,8 @@ def shortcut_path(
     radius: float,
     reverse: bool,
     min_piece: float,
+    cost: NDArray[np.float64] | None = None,
+    reverse_weight: float = 1.0,
     window: int = 60,
     spacing: float = 0.5,
 ) -> NDArray[np.int64]:
@@ -570,11 +641,18 @@ def shortcut_path(
     piece that reaches node ``a`` (cells; free with the ``margin`` checker's larger footprint,
     which a shortcut replacing only such pieces must then be free with too); ``piece_gears[a]``
     its first gear, last gear and gear changes (row 0 zeros); ``min_piece`` the shortest run
-    of one gear a shortcut may put between two gear changes (cells)."""
+    of one gear a shortcut may put between two gear changes (cells). With ``cost`` (the
+    search's clearance cost) or a ``reverse_weight`` other than 1, ``piece_len`` holds each
+    piece's cost (:func:`pieces_cost`) and a shortcut must be cheaper, not only shorter: a
+    turn made to drive forwards is not undone by a shorter curve that backs up."""
+    costed = cost is not None
     return np.asarray(
         _shortcut_kernel(
             footprint_test(checker),
             footprint_test(margin),
+            np.ascontiguousarray(cost if costed else np.zeros((1, 1)), dtype=np.float64),
+            costed,
+            float(reverse_weight),
             np.ascontiguousarray(nodes, dtype=np.float64),
             np.ascontiguousarray(piece_len, dtype=np.float64),
             np.ascontiguousarray(piece_clear, dtype=np.bool_),
@@ -584,6 +662,32 @@ def shortcut_path(
             int(window),
             float(spacing),
             float(min_piece),
+        )
+    )
+
+
+def pieces_cost(
+    cost: NDArray[np.float64] | None,
+    start: tuple[float, float, float] | NDArray[np.float64],
+    curvatures: NDArray[np.float64],
+    lengths: NDArray[np.float64],
+    reverse_weight: float,
+    spacing: float = 0.5,
+) -> float:
+    """The search's cost (cells) of constant-curvature pieces from ``start`` (grid pose): arc
+    length times ``1 + cost`` along it (no cost: 0), times ``reverse_weight`` when backwards."""
+    x, y, t = (float(v) for v in start)
+    return float(
+        _pieces_cost(
+            np.ascontiguousarray(np.zeros((1, 1)) if cost is None else cost, dtype=np.float64),
+            cost is not None,
+            x,
+            y,
+            t,
+            np.ascontiguousarray(curvatures, dtype=np.float64),
+            np.ascontiguousarray(lengths, dtype=np.float64),
+            float(reverse_weight),
+            float(spacing),
         )
     )
 

@@ -23,6 +23,7 @@ from numpy.typing import NDArray
 
 from slamcli.errors import InputError, MapError, NoPathError
 from slamcli.planning.costmap import (
+    CENTRING_RADIUS_M,
     COST_SCALING_PER_M,
     INFLATION_RADIUS_M,
     OCCUPIED_THRESH,
@@ -139,10 +140,14 @@ def plan(
     cost_scaling_per_m: float = COST_SCALING_PER_M,
     inflation_radius_m: float = INFLATION_RADIUS_M,
     tracker: TrackerSettings | None = None,
+    cost_penalty: float = 0.0,
+    centring_radius_m: float = CENTRING_RADIUS_M,
 ) -> PlanResult:
     """Plan, smooth, time and track a path from ``start_xy`` to ``goal_xy`` (world, m).
 
     ``unknown_policy`` is ``"blocked"`` (unknown cells are obstacles) or ``"free"``.
+    ``cost_penalty`` > 0 adds the centring cost (:func:`~slamcli.planning.costmap.
+    centring_cost` over ``centring_radius_m``) to the clearance cost.
     Raises MapError when start or goal is outside the map or not in free space (the message
     names the nearest free cell), NoPathError when the goal cannot be reached (with the number
     of cells reachable from the start) or a dynamic obstacle that never vanishes blocks the
@@ -163,6 +168,8 @@ def plan(
         clearance_weight=clearance_weight,
         cost_scaling_per_m=cost_scaling_per_m,
         inflation_radius_m=inflation_radius_m,
+        cost_penalty=cost_penalty,
+        centring_radius_m=centring_radius_m,
     )
     timings["costmap"] = _ms_since(t0)
     start = (float(start_xy[0]), float(start_xy[1]))
@@ -210,6 +217,8 @@ def plan(
         "clearance_weight": float(clearance_weight),
         "cost_scaling_per_m": float(cost_scaling_per_m),
         "inflation_radius_m": float(inflation_radius_m),
+        "cost_penalty": float(cost_penalty),
+        "centring_radius_m": float(centring_radius_m),
         "max_speed": limits.max_speed,
         "max_yaw_rate": limits.max_yaw_rate,
         "max_accel": limits.max_accel,
