@@ -207,6 +207,20 @@ def test_centring_cost_field() -> None:
     assert open_space[40] == pytest.approx((1 - 4.0 / 5.5) ** 2)
 
 
+def test_max_planning_time(yard_grid: OccupancyGrid) -> None:
+    """A budget the full search cannot meet: a greedy search finds a path, which comes with a
+    warning, or, when it cannot either, an error naming the option. (1 ms: the searches check
+    the time every 1024 states, which take several milliseconds.)"""
+    from slamcli.errors import NoPathError
+
+    hurried = CarSettings(YARD_CAR, YARD_RADIUS_M, max_planning_time_s=0.001)
+    result = plan_car(yard_grid, YARD_START, BAY_GOAL, hurried, YARD_LIMITS)
+    _check_path(result, YARD_RADIUS_M)
+    assert len(result.warnings) == 1 and "greedy search" in result.warnings[0]
+    with pytest.raises(NoPathError, match="--max-planning-time"):
+        plan_car(yard_grid, YARD_START, BAY_GOAL_NOSE_IN, hurried, YARD_LIMITS)
+
+
 def test_deterministic(yard_grid: OccupancyGrid, bay_plan: tuple[CarPlanResult, float]) -> None:
     again = plan_car(
         yard_grid, YARD_START, BAY_GOAL, CarSettings(YARD_CAR, YARD_RADIUS_M), YARD_LIMITS
@@ -267,7 +281,9 @@ def test_cli_ackermann_writes_the_plan(tmp_path: Path, yard_grid: OccupancyGrid)
     assert record["goal_error_m"] <= 0.05 and record["goal_error_deg"] <= 2
     assert {"search", "plot", "write", "total"} <= set(record["timings_ms"])
     path = np.loadtxt(out / "path.csv", delimiter=",", skiprows=1)
-    assert path.shape[1] == 5 and (path[:, 3] == -1).any()
+    assert path.shape[1] == 6 and (path[:, 3] == -1).any()
+    np.testing.assert_allclose(np.tan(path[:, 5]), 2.7 * path[:, 4], atol=1e-6)
+    assert record["clearance_ratio"]["median"] >= record["clearance_ratio"]["p10"] > 0
     traj = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1)
     assert traj[:, 4].min() < 0 < traj[:, 4].max()
     assert (out / "plan.png").stat().st_size > 1000
@@ -304,7 +320,11 @@ def test_cli_ackermann_option_errors(tmp_path: Path) -> None:
     )
     assert res.exit_code == 1 and "the same pose" in res.output
     car = [*base[:2], "--start", "0,0,0", "--goal", "5.5,14,1.57", "--footprint", "0.9x0.6"]
-    for option, value in (("--cost-penalty", "-1"), ("--inflation-radius", "0")):
+    for option, value in (
+        ("--cost-penalty", "-1"),
+        ("--inflation-radius", "0"),
+        ("--max-planning-time", "0"),
+    ):
         res = CliRunner().invoke(
             app, [*car, "--motion", "ackermann", option, value, "--out", str(tmp_path / "c")]
         )

@@ -190,6 +190,15 @@ def plan(
             "shortest path; 2 as Nav2's Smac planner).",
         ),
     ] = 2.0,
+    max_planning_time: Annotated[
+        float,
+        typer.Option(
+            "--max-planning-time",
+            help="Ackermann: the search's time budget (s; the free space and heuristic before "
+            "it are not counted). When the full search runs out of 60 % of it, a greedy one "
+            "looks for a path in the rest: found, it comes with a warning; not found, an error.",
+        ),
+    ] = 5.0,
     wheelbase: Annotated[
         float | None,
         typer.Option(
@@ -285,6 +294,7 @@ def plan(
             reverse,
             reverse_penalty,
             (COST_PENALTY if cost_penalty is None else cost_penalty, inflation_radius),
+            max_planning_time,
             policy,
             (max_speed, max_yaw_rate, max_accel, max_lateral_accel, wheelbase),
             out,
@@ -347,6 +357,7 @@ def _plan_car(
     reverse: bool,
     reverse_penalty: float,
     centring: tuple[float, float],
+    max_planning_time: float,
     policy: str,
     limits_in: tuple[float, float, float, float, float | None],
     out: Path,
@@ -375,6 +386,7 @@ def _plan_car(
         reverse_weight=reverse_penalty,
         cost_penalty=centring[0],
         inflation_radius_m=centring[1],
+        max_planning_time_s=max_planning_time,
     ).checked()
     max_speed, max_yaw_rate, max_accel, max_lateral, wheelbase = limits_in
     length = float(fp.vertices[:, 0].max() - fp.vertices[:, 0].min())
@@ -407,6 +419,8 @@ def _plan_car(
         )
     render.key_values("Plan", car_summary(result, map_file))
     render.written(written)
+    for warning in result.warnings:
+        render.warn(warning)
     if not result.tracking.reached_goal:
         render.warn("the simulated robot did not reach the goal within the time limit")
 

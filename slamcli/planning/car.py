@@ -63,6 +63,15 @@ N_HEADINGS = 72
 COST_PENALTY = 8.0
 """Default weight of the centring cost (see :class:`CarSettings`)."""
 
+MAX_PLANNING_TIME_S = 5.0
+"""Default time budget of the search, seconds (Nav2's ``max_planning_time``)."""
+
+FIRST_SEARCH_SHARE = 0.6
+"""Share of the time budget the full search gets before a greedy one takes over."""
+
+GREED = 3.0
+"""Heuristic weight of the greedy search that runs when the full one runs out of time."""
+
 
 @dataclass(frozen=True)
 class CarSettings:
@@ -84,6 +93,8 @@ class CarSettings:
             metres. 0 gives the shortest path.
         inflation_radius_m: how far around a point the centring cost looks for the middle of
             the free space, metres.
+        max_planning_time_s: the search's time budget, seconds (None: no limit), from its
+            start (after the free space and the heuristic); see :func:`_search`.
     """
 
     footprint: Footprint
@@ -98,6 +109,7 @@ class CarSettings:
     max_expanded: int = 3_000_000
     cost_penalty: float = COST_PENALTY
     inflation_radius_m: float = CENTRING_RADIUS_M
+    max_planning_time_s: float | None = MAX_PLANNING_TIME_S
 
     def checked(self) -> CarSettings:
         if not (math.isfinite(self.min_turn_radius_m) and self.min_turn_radius_m > 0):
@@ -122,6 +134,12 @@ class CarSettings:
                 f"--inflation-radius must be a positive number of metres, got "
                 f"{self.inflation_radius_m!r}",
                 hint=f"for example --inflation-radius {CENTRING_RADIUS_M}",
+            )
+        t = self.max_planning_time_s
+        if t is not None and not (math.isfinite(t) and t > 0.0):
+            raise ConfigError(
+                f"--max-planning-time must be a positive number of seconds, got {t!r}",
+                hint=f"for example --max-planning-time {MAX_PLANNING_TIME_S:g}",
             )
         if self.unknown not in ("blocked", "free"):
             raise ConfigError(
@@ -149,6 +167,8 @@ class CarPlanResult:
             simulated robot.
         expanded: search nodes expanded.
         timings_ms: per stage.
+        warnings: what the user should know of how the path was found (a search cut short
+            by ``max_planning_time_s``).
     """
 
     start: tuple[float, float, float]
@@ -171,6 +191,7 @@ class CarPlanResult:
     tracking: TrackingResult
     expanded: int
     timings_ms: dict[str, float] = field(default_factory=dict)
+    warnings: list[str] = field(default_factory=list)
 
     @property
     def goal_error(self) -> tuple[float, float]:
@@ -256,7 +277,14 @@ class _Problem:
     step: float
     bin_size: float
 
-    def search(self, reverse: bool, cap: int, test: FootprintChecker | None = None) -> Any:
+    def search(
+        self,
+        reverse: bool,
+        cap: int,
+        test: FootprintChecker | None = None,
+        deadline: float = math.inf,
+        greed: float = 1.0,
+    ) -> Any:
         from slamcli.planning.hybrid_astar import lattice_search
 
         res = float(self.grid.resolution_m)
@@ -275,6 +303,8 @@ class _Problem:
             reverse_weight=self.settings.reverse_weight,
             switch_penalty=self.settings.switch_penalty_m / res,
             max_expanded=cap,
+            deadline=deadline,
+            greed=greed,
         )
 
 
@@ -320,7 +350,10 @@ def plan_car(
     problem = _problem(grid, settings, blocked, checker, margin, start, goal)
     timings["heuristic"] = _ms(t1)
     t2 = time.perf_counter()
-    found = _search(problem, np.asarray([start, goal], dtype=np.float64))
+    warnings: list[str] = []
+    budget = settings.max_planning_time_s
+    deadline = math.inf if budget is None else t2 + budget
+    found = _search(problem, np.asarray([start, goal], dtype=np.float64), t2, deadline, warnings)
     timings["search"] = _ms(t2)
     t3 = time.perf_counter()
     nodes = np.vstack((found.nodes, np.asarray([problem.goal])))
@@ -365,6 +398,7 @@ def plan_car(
         tracking=tracking,
         expanded=found.expanded,
         timings_ms=timings,
+        warnings=warnings,
     )
 
 
@@ -410,14 +444,46 @@ def _problem(
     )
 
 
-def _search(problem: _Problem, ends: NDArray[np.float64]) -> Any:
+def _search(
+    problem: _Problem,
+    ends: NDArray[np.float64],
+    started: float,
+    deadline: float,
+    warnings: list[str],
+) -> Any:
     """The lattice path, then the same search with the footprint grown by a margin (the largest
     of :data:`CLEARANCE_LADDER_M` that works within a few times the first search's effort), so
-    the path keeps that clearance everywhere when the map allows it."""
-    from slamcli.planning.hybrid_astar import FOUND, LIMIT
+    the path keeps that clearance everywhere when the map allows it.
+
+    With a deadline, the full search gets :data:`FIRST_SEARCH_SHARE` of the time; when it runs
+    out, a greedy search (heuristic weighed by :data:`GREED`) gets the rest, and its path comes
+    with a warning; a margin search still running at the deadline is dropped, with a warning.
+    """
+    from slamcli.planning.hybrid_astar import FOUND, LIMIT, TIMEOUT
 
     settings = problem.settings
-    found = problem.search(settings.reverse, settings.max_expanded)
+    first = started + FIRST_SEARCH_SHARE * (deadline - started)
+    found = problem.search(settings.reverse, settings.max_expanded, deadline=first)
+    if found.status == TIMEOUT:
+        greedy = problem.search(
+            settings.reverse, settings.max_expanded, deadline=deadline, greed=GREED
+        )
+        spent = found.expanded + greedy.expanded
+        budget = deadline - started
+        if greedy.status != FOUND:
+            if greedy.status == TIMEOUT:
+                raise NoPathError(
+                    f"no path found within --max-planning-time {budget:g} s ({spent} search "
+                    "states)",
+                    hint="raise --max-planning-time, or try a goal in more open space",
+                )
+            _no_path(greedy, settings, problem.search, LIMIT, FOUND)
+        warnings.append(
+            f"the full search ran out of --max-planning-time ({budget:g} s) after "
+            f"{found.expanded} states; this path comes from a greedy search and may be up to "
+            f"{GREED:g} times as costly as the best (raise --max-planning-time for that)"
+        )
+        return dataclasses.replace(greedy, expanded=spent)
     if found.status != FOUND:
         _no_path(found, settings, problem.search, LIMIT, FOUND)
     spent = found.expanded
@@ -430,8 +496,16 @@ def _search(problem: _Problem, ends: NDArray[np.float64]) -> Any:
         )
         if not wider.free(ends).all():
             continue
-        wide = problem.search(settings.reverse, 4 * found.expanded + 20_000, wider)
+        wide = problem.search(
+            settings.reverse, 4 * found.expanded + 20_000, wider, deadline=deadline
+        )
         spent += wide.expanded
+        if wide.status == TIMEOUT:
+            warnings.append(
+                f"--max-planning-time ran out while looking for a path with {margin:g} m of "
+                "margin around the footprint; this one keeps only the footprint itself clear"
+            )
+            break
         if wide.status == FOUND:
             found = wide
             break

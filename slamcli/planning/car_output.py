@@ -1,7 +1,8 @@
 """Write a car-like plan's files into a run folder: CSVs, plan.json and plan.png.
 
-- ``path.csv`` ``x,y,yaw,direction,curvature``: the final path (m, rad, +1 forward / -1
-  reverse for the motion leaving each pose, 1/m), at most half a map cell apart;
+- ``path.csv`` ``x,y,yaw,direction,curvature,steering``: the final path (m, rad, +1 forward /
+  -1 reverse for the motion leaving each pose, 1/m, and the front wheel's steering angle
+  ``atan(wheelbase · curvature)`` in rad, left positive), at most half a map cell apart;
 - ``path_search.csv`` ``x,y,yaw``: the search's lattice poses before smoothing;
 - ``trajectory.csv`` ``t,x,y,theta,v,omega``: the path timed every ``dt_s`` (v < 0 reversing);
 - ``tracked.csv`` ``t,x,y,theta,v,omega``: the simulated bicycle-model robot;
@@ -42,7 +43,8 @@ def car_plan_record(result: CarPlanResult, map_file: str | Path | None = None) -
     middle line of the free space, 0 at a wall),
     ``max_curvature_per_m`` and ``curvature_limit_per_m`` (1 / min turn radius),
     ``goal_error_m``/``goal_error_deg`` (last pose to the goal), ``expanded``, ``timings_ms``,
-    ``trajectory_s``, ``time_to_goal_s``, ``goal_reached``, ``tracking``.
+    ``trajectory_s``, ``time_to_goal_s``, ``goal_reached``, ``warnings`` (a search cut short by
+    the time budget), ``tracking``.
     """
     from slamcli import __version__
 
@@ -69,6 +71,7 @@ def car_plan_record(result: CarPlanResult, map_file: str | Path | None = None) -
             "max_expanded": s.max_expanded,
             "cost_penalty": s.cost_penalty,
             "inflation_radius_m": s.inflation_radius_m,
+            "max_planning_time_s": s.max_planning_time_s,
         },
         "limits": {k: getattr(result.limits, k) for k in result.limits.__dataclass_fields__},
         "length_m": result.length_m,
@@ -87,6 +90,7 @@ def car_plan_record(result: CarPlanResult, map_file: str | Path | None = None) -
         "trajectory_s": result.profile.duration_s,
         "time_to_goal_s": tr.time_to_goal_s,
         "goal_reached": tr.reached_goal,
+        "warnings": list(result.warnings),
         "tracking": {
             "cross_track_max_m": tr.cross_track_max_m,
             "cross_track_rms_m": tr.cross_track_rms_m,
@@ -110,9 +114,12 @@ def write_car_plan(
     """
     from slamcli.planning.car_plot import plot_car_plan
 
-    path = np.column_stack((result.poses, result.direction.astype(np.float64), result.curvature))
+    steering = np.arctan(result.limits.wheelbase_m * result.curvature)
+    path = np.column_stack(
+        (result.poses, result.direction.astype(np.float64), result.curvature, steering)
+    )
     csvs = {
-        "path.csv": _csv("x,y,yaw,direction,curvature", path),
+        "path.csv": _csv("x,y,yaw,direction,curvature,steering", path),
         "path_search.csv": _csv("x,y,yaw", result.search_poses),
         "trajectory.csv": _csv("t,x,y,theta,v,omega", result.trajectory),
         "tracked.csv": _csv("t,x,y,theta,v,omega", result.tracking.states),

@@ -31,6 +31,8 @@ from __future__ import annotations
 
 import heapq
 import math
+import threading
+import time
 from dataclasses import dataclass
 
 import numba
@@ -60,7 +62,7 @@ __all__ = [
     "shortcut_path",
 ]
 
-SEARCHING, FOUND, EXHAUSTED, LIMIT = 0, 1, 2, 3
+SEARCHING, FOUND, EXHAUSTED, LIMIT, TIMEOUT = 0, 1, 2, 3, 4
 """Outcomes of :func:`_search_kernel`."""
 
 TAIL_REVERSE_RADII = 3.0
@@ -75,7 +77,8 @@ class LatticeResult:
     """What :func:`lattice_search` found, in grid coordinates (cells, radians).
 
     Attributes:
-        status: FOUND, EXHAUSTED (every reachable state expanded) or LIMIT (expansion cap hit).
+        status: FOUND, EXHAUSTED (every reachable state expanded), LIMIT (expansion cap hit)
+            or TIMEOUT (the deadline passed).
         nodes: (K, 3) poses of the lattice path from the start, the last one where the
             analytic curve to the goal begins.
         curvature: (K,) curvature (1/cells) of the primitive that reached each node (0 for the
@@ -227,7 +230,7 @@ def _wrap(t: float) -> float:
     return (t + math.pi) % (2.0 * math.pi) - math.pi
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, nogil=True)
 def _search_kernel(
     fp: FootprintTest,
     holo: NDArray[np.float64],
@@ -245,6 +248,8 @@ def _search_kernel(
     switch_penalty: float,
     max_expanded: int,
     spacing: float,
+    stop: NDArray[np.uint8],
+    greed: float,
 ):
     h, w = holo.shape
     cap = 1 << 16
@@ -282,6 +287,8 @@ def _search_kernel(
         expanded += 1
         if expanded > max_expanded:
             return LIMIT, i, n_nodes, xs, ys, ts, parent, kap, gear, kinds, lengths, expanded
+        if expanded % 1024 == 0 and stop[0]:
+            return TIMEOUT, i, n_nodes, xs, ys, ts, parent, kap, gear, kinds, lengths, expanded
         r = min(max(int(y), 0), h - 1)
         c = min(max(int(x), 0), w - 1)
         hol = holo[r, c]
@@ -363,7 +370,7 @@ def _search_kernel(
                     nonholo = rs_length(nx_, ny_, nt_, gx, gy, gt, radius)
                 else:
                     nonholo = dubins_length(nx_, ny_, nt_, gx, gy, gt, radius)
-                f = g + max(hol_n, nonholo)
+                f = g + greed * max(hol_n, nonholo)
                 heapq.heappush(heap, (f, -g, j))
     return EXHAUSTED, -1, n_nodes, xs, ys, ts, parent, kap, gear, kinds, lengths, expanded
 
@@ -406,33 +413,50 @@ def lattice_search(
     switch_penalty: float = 0.0,
     max_expanded: int = 2_000_000,
     spacing: float = 0.5,
+    deadline: float = math.inf,
+    greed: float = 1.0,
 ) -> LatticeResult:
     """Run the search of the module doc; all lengths in cells, poses ``(u, v, yaw)``.
 
     ``checker`` tests the footprint; ``holonomic`` (H, W) is the grid distance of every cell to
     the goal (inf where unreachable), with ``cost`` included when one is given; ``cost`` (H, W)
     is the clearance cost: a primitive ending in cell c costs ``(1 + cost[c])`` per cell of
-    arc length.
+    arc length. The search stops with TIMEOUT once ``time.perf_counter()`` passes ``deadline``
+    (a timer thread raises a flag that the search, which runs without the GIL, reads every
+    1024 expansions). ``greed`` > 1 weighs the heuristic by it (weighted A*):
+    a path is found after far fewer expansions, at most ``greed`` times as costly.
     """
     costed = cost is not None
-    out = _search_kernel(
-        footprint_test(checker),
-        np.ascontiguousarray(holonomic, dtype=np.float64),
-        np.ascontiguousarray(cost if costed else np.zeros((1, 1)), dtype=np.float64),
-        costed,
-        np.asarray(start, dtype=np.float64),
-        np.asarray(goal, dtype=np.float64),
-        float(radius),
-        float(step),
-        int(n_steer),
-        bool(reverse),
-        float(bin_size),
-        int(n_headings),
-        float(reverse_weight),
-        float(switch_penalty),
-        int(max_expanded),
-        float(spacing),
-    )
+    stop = np.zeros(1, dtype=np.uint8)
+    timer = None
+    if math.isfinite(deadline):
+        timer = threading.Timer(max(0.0, deadline - time.perf_counter()), stop.fill, (1,))
+        timer.daemon = True
+        timer.start()
+    try:
+        out = _search_kernel(
+            footprint_test(checker),
+            np.ascontiguousarray(holonomic, dtype=np.float64),
+            np.ascontiguousarray(cost if costed else np.zeros((1, 1)), dtype=np.float64),
+            costed,
+            np.asarray(start, dtype=np.float64),
+            np.asarray(goal, dtype=np.float64),
+            float(radius),
+            float(step),
+            int(n_steer),
+            bool(reverse),
+            float(bin_size),
+            int(n_headings),
+            float(reverse_weight),
+            float(switch_penalty),
+            int(max_expanded),
+            float(spacing),
+            stop,
+            float(greed),
+        )
+    finally:
+        if timer is not None:
+            timer.cancel()
     status, last, _, xs, ys, ts, parent, kap, gear, kinds, lengths, expanded = out
     chain: list[int] = []
     i = int(last)
