@@ -282,7 +282,7 @@ def test_cli_ackermann_writes_the_plan(tmp_path: Path, yard_grid: OccupancyGrid)
     assert {"search", "plot", "write", "total"} <= set(record["timings_ms"])
     path = np.loadtxt(out / "path.csv", delimiter=",", skiprows=1)
     assert path.shape[1] == 6 and (path[:, 3] == -1).any()
-    np.testing.assert_allclose(np.tan(path[:, 5]), 2.7 * path[:, 4], atol=1e-6)
+    np.testing.assert_allclose(np.tan(path[:, 5]), 2.7 * path[:, 4], atol=1e-4)
     assert record["clearance_ratio"]["median"] >= record["clearance_ratio"]["p10"] > 0
     traj = np.loadtxt(out / "trajectory.csv", delimiter=",", skiprows=1)
     assert traj[:, 4].min() < 0 < traj[:, 4].max()
@@ -329,3 +329,89 @@ def test_cli_ackermann_option_errors(tmp_path: Path) -> None:
             app, [*car, "--motion", "ackermann", option, value, "--out", str(tmp_path / "c")]
         )
         assert res.exit_code == 1 and option in res.output
+
+
+def _rates_from_poses(poses: np.ndarray, gears: np.ndarray) -> np.ndarray:
+    """|change of curvature| per metre between consecutive motions of one gear, from the
+    poses alone (chord and heading change of each motion)."""
+    dyaw = np.angle(np.exp(1j * np.diff(poses[:, 2])))
+    chord = np.hypot(*np.diff(poses[:, :2], axis=0).T)
+    arc = chord / np.sinc(dyaw / (2 * np.pi))
+    kappa = dyaw / arc
+    same = gears[1:-1] == gears[:-2]
+    return np.abs(np.diff(kappa))[same] / (0.5 * (arc[1:] + arc[:-1]))[same]
+
+
+def test_steering_is_continuous_within_each_gear(
+    floor_queries: list[tuple[str, OccupancyGrid, tuple, tuple]],
+) -> None:
+    """Measured from the poses: the curvature changes by at most 1/(R x 0.5 m) per metre
+    within each gear, stays within 1/R, and the goal is reached exactly; without the limit
+    (--full-lock-distance 0) the same query's steering jumps."""
+    limit = 1.0 / (SMALL_RADIUS_M * 0.5)
+    smooth_runs = 0
+    for _, grid, start, goal in floor_queries:
+        result = plan_car(grid, start, goal, CarSettings(SMALL_CAR, SMALL_RADIUS_M), SMALL_LIMITS)
+        _check_path(result, SMALL_RADIUS_M)
+        assert result.goal_error[0] <= 1e-6
+        rates = _rates_from_poses(result.poses, result.direction)
+        if not result.warnings:
+            assert rates.max() <= limit * 1.001
+            smooth_runs += 1
+        else:
+            assert "keep steps in their steering" in result.warnings[0]
+    assert smooth_runs >= len(floor_queries) - 1
+    _, grid, start, goal = floor_queries[0]
+    jumpy = plan_car(
+        grid,
+        start,
+        goal,
+        CarSettings(SMALL_CAR, SMALL_RADIUS_M, full_lock_distance_m=None),
+        SMALL_LIMITS,
+    )
+    assert _rates_from_poses(jumpy.poses, jumpy.direction).max() > 10 * limit
+
+
+def test_steering_ramps_a_lane_change() -> None:
+    """Straight, full lock left, full lock right, straight: the curvature jumps become ramps
+    within the rate limit, within 1/R, and the run ends exactly where it did."""
+    from slamcli.planning.steering import pose_curvatures, steered_path
+
+    radius, ds = 2.0, 0.02
+    pieces = [(0.0, 3.0), (1 / radius, 1.5), (-1 / radius, 1.5), (0.0, 3.0)]
+    poses = [np.zeros(3)]
+    kappas = []
+    for kappa, length in pieces:
+        for _ in range(round(length / ds)):
+            x, y, t = poses[-1]
+            t1 = t + kappa * ds
+            if kappa:
+                nxt = (x + (np.sin(t1) - np.sin(t)) / kappa, y - (np.cos(t1) - np.cos(t)) / kappa)
+            else:
+                nxt = (x + ds * np.cos(t), y + ds * np.sin(t))
+            poses.append(np.array([*nxt, t1]))
+            kappas.append(kappa)
+    poses_a = np.array(poses)
+    direction = np.ones(len(poses_a), dtype=np.int8)
+    curvature = np.array([*kappas, kappas[-1]])
+    rate = 1.0 / (radius * 0.5)
+    out = steered_path(
+        poses_a,
+        direction,
+        curvature,
+        kappa_max=1 / radius,
+        rate=rate,
+        ds=ds,
+        free=lambda p: np.ones(len(p), dtype=bool),
+    )
+    assert out.kept_runs == 0
+    np.testing.assert_allclose(out.poses[-1], poses_a[-1], atol=1e-9)
+    kappa, arcs = pose_curvatures(out.poses)
+    assert np.abs(kappa).max() <= 1 / radius + 1e-9
+    assert (np.abs(np.diff(kappa)) / arcs[1:]).max() <= rate * 1.001
+    # The path stays near the original. Each ramp moves it sideways by about dk W² / 24 with
+    # W = 2 kappa_max / (0.75 rate) = 1.33 m: 3.7 cm for the straight-to-lock changes, 7.4 cm
+    # for the left-to-right one; the anchors every 3 m keep it within those.
+    from scipy.spatial import cKDTree
+
+    assert cKDTree(poses_a[:, :2]).query(out.poses[:, :2])[0].max() < 0.2

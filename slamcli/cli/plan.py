@@ -190,6 +190,15 @@ def plan(
             "shortest path; 2 as Nav2's Smac planner).",
         ),
     ] = 2.0,
+    full_lock_distance: Annotated[
+        float,
+        typer.Option(
+            "--full-lock-distance",
+            help="Ackermann: the shortest travel (m) over which the steering may go from "
+            "straight ahead to full lock; the curvature then changes by at most 1/(R x this) "
+            "per metre. 0 keeps arcs and straight lines, whose steering jumps.",
+        ),
+    ] = 0.5,
     max_planning_time: Annotated[
         float,
         typer.Option(
@@ -295,6 +304,7 @@ def plan(
             reverse_penalty,
             (COST_PENALTY if cost_penalty is None else cost_penalty, inflation_radius),
             max_planning_time,
+            full_lock_distance,
             policy,
             (max_speed, max_yaw_rate, max_accel, max_lateral_accel, wheelbase),
             out,
@@ -358,6 +368,7 @@ def _plan_car(
     reverse_penalty: float,
     centring: tuple[float, float],
     max_planning_time: float,
+    full_lock_distance: float,
     policy: str,
     limits_in: tuple[float, float, float, float, float | None],
     out: Path,
@@ -387,6 +398,7 @@ def _plan_car(
         cost_penalty=centring[0],
         inflation_radius_m=centring[1],
         max_planning_time_s=max_planning_time,
+        full_lock_distance_m=full_lock_distance if full_lock_distance != 0.0 else None,
     ).checked()
     max_speed, max_yaw_rate, max_accel, max_lateral, wheelbase = limits_in
     length = float(fp.vertices[:, 0].max() - fp.vertices[:, 0].min())
@@ -439,9 +451,15 @@ def car_summary(result: Any, map_file: Path) -> dict[str, str]:
         "gear changes": str(result.reversals),
         "min clearance": f"{result.min_clearance_m:.3f} m (footprint to the nearest blocked cell)",
         "centring": f"median {result.clearance_ratio[0]:.2f}, 10th percentile "
-        f"{result.clearance_ratio[1]:.2f} (1 = middle of the free space, 0 = at a wall)",
+        f"{result.clearance_ratio[1]:.2f} (clearance ratio)",
         "max curvature": f"{result.max_curvature:.4f} 1/m (limit "
         f"{1.0 / result.settings.min_turn_radius_m:.4f})",
+        "steering rate": f"{result.max_curvature_rate:.3f} 1/m² of curvature per metre "
+        + (
+            "(not limited)"
+            if result.curvature_rate_limit is None
+            else f"(limit {result.curvature_rate_limit:.3f})"
+        ),
         "goal error": f"{err_m:.4f} m, {math.degrees(err_rad):.3f} deg",
         "search": f"{result.expanded} states in {search_ms:.0f} ms",
         "trajectory": f"{result.profile.duration_s:.1f} s",

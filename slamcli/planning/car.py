@@ -48,6 +48,12 @@ from slamcli.planning.costmap import (
     world_to_uv,
 )
 from slamcli.planning.footprint import Footprint, FootprintChecker
+from slamcli.planning.steering import (
+    FULL_LOCK_DISTANCE_M,
+    curvature_rate,
+    pose_curvatures,
+    steered_path,
+)
 from slamcli.planning.tracker import TrackerSettings, TrackingResult
 from slamcli.types import OccupancyGrid
 
@@ -93,6 +99,11 @@ class CarSettings:
             metres. 0 gives the shortest path.
         inflation_radius_m: how far around a point the centring cost looks for the middle of
             the free space, metres.
+        full_lock_distance_m: the shortest travel over which the steering may go from
+            straight ahead to full lock: the curvature changes by at most
+            ``1 / (min_turn_radius_m * full_lock_distance_m)`` per metre
+            (:mod:`slamcli.planning.steering`); None keeps the arcs and lines, whose
+            curvature jumps.
         max_planning_time_s: the search's time budget, seconds (None: no limit), from its
             start (after the free space and the heuristic); see :func:`_search`.
     """
@@ -110,6 +121,7 @@ class CarSettings:
     cost_penalty: float = COST_PENALTY
     inflation_radius_m: float = CENTRING_RADIUS_M
     max_planning_time_s: float | None = MAX_PLANNING_TIME_S
+    full_lock_distance_m: float | None = FULL_LOCK_DISTANCE_M
 
     def checked(self) -> CarSettings:
         if not (math.isfinite(self.min_turn_radius_m) and self.min_turn_radius_m > 0):
@@ -134,6 +146,13 @@ class CarSettings:
                 f"--inflation-radius must be a positive number of metres, got "
                 f"{self.inflation_radius_m!r}",
                 hint=f"for example --inflation-radius {CENTRING_RADIUS_M}",
+            )
+        d = self.full_lock_distance_m
+        if d is not None and not (math.isfinite(d) and d > 0.0):
+            raise ConfigError(
+                f"--full-lock-distance must be a positive number of metres, got {d!r}",
+                hint=f"for example --full-lock-distance {FULL_LOCK_DISTANCE_M:g}; 0 keeps the "
+                "arcs and lines",
             )
         t = self.max_planning_time_s
         if t is not None and not (math.isfinite(t) and t > 0.0):
@@ -163,6 +182,9 @@ class CarPlanResult:
         clearance_ratio: (median, 10th percentile) over the poses of the clearance ratio of
             their cells (:func:`~slamcli.planning.costmap.clearance_ratio`, over
             ``inflation_radius_m``): 1 on the middle line of the free space, 0 at a wall.
+        max_curvature_rate: the largest change of curvature per metre between consecutive
+            poses of one gear (1/m², from the poses' headings and spacing);
+            curvature_rate_limit: the limit the path was made for (None: not limited).
         profile, trajectory, tracking: the timed path, sampled every ``dt_s``, and the
             simulated robot.
         expanded: search nodes expanded.
@@ -185,6 +207,8 @@ class CarPlanResult:
     reversals: int
     min_clearance_m: float
     clearance_ratio: tuple[float, float]
+    max_curvature_rate: float
+    curvature_rate_limit: float | None
     max_curvature: float
     profile: CarProfile
     trajectory: NDArray[np.float64]
@@ -361,12 +385,18 @@ def plan_car(
     timings["smooth"] = _ms(t3)
     t4 = time.perf_counter()
     poses, curvature = _checked_world_path(problem, poses_g, curv)
+    timings["check"] = _ms(t4)
+    t45 = time.perf_counter()
+    steering = _steer(problem, poses, gears, curvature, warnings)
+    poses, gears, curvature = steering.poses, steering.direction, steering.curvature
+    timings["steering"] = _ms(t45)
     clearance = checker.clearance(poses)
     h, w = blocked.shape
-    rows = np.clip(poses_g[:, 1].astype(np.int64), 0, h - 1)
-    cols = np.clip(poses_g[:, 0].astype(np.int64), 0, w - 1)
+    uv = world_to_uv(grid, poses[:, :2])
+    rows = np.clip(uv[:, 1].astype(np.int64), 0, h - 1)
+    cols = np.clip(uv[:, 0].astype(np.int64), 0, w - 1)
     ratio = problem.ratio[rows, cols]
-    timings["check"] = _ms(t4)
+    rates = _curvature_rates(poses, gears)
     t5 = time.perf_counter()
     profile = time_parameterise_car(poses, gears, curvature, limits)
     trajectory = profile.sample_every(dt_s)
@@ -392,6 +422,12 @@ def plan_car(
         reversals=int(np.count_nonzero(np.diff(gears[:-1].astype(np.int64)) != 0)),
         min_clearance_m=float(clearance.min()),
         clearance_ratio=(float(np.median(ratio)), float(np.percentile(ratio, 10))),
+        max_curvature_rate=float(rates.max()) if len(rates) else 0.0,
+        curvature_rate_limit=(
+            None
+            if settings.full_lock_distance_m is None
+            else curvature_rate(settings.min_turn_radius_m, settings.full_lock_distance_m)
+        ),
         max_curvature=float(np.abs(curvature).max()),
         profile=profile,
         trajectory=trajectory,
@@ -564,6 +600,49 @@ def _smooth(
         reverse_weight=weight,
     )
     return _assemble(nodes, pieces, keep, problem.radius, problem.settings.reverse)
+
+
+def _steer(
+    problem: _Problem,
+    poses: NDArray[np.float64],
+    gears: NDArray[np.int8],
+    curvature: NDArray[np.float64],
+    warnings: list[str],
+) -> Any:
+    """The path with continuous steering (:mod:`slamcli.planning.steering`), or as it is when
+    ``full_lock_distance_m`` is None; a warning for the gear runs that kept their jumps."""
+    from slamcli.planning.steering import SteeredPath
+
+    settings = problem.settings
+    if settings.full_lock_distance_m is None:
+        return SteeredPath(poses, gears, curvature, 0, 0)
+    radius = settings.min_turn_radius_m
+    steered = steered_path(
+        poses,
+        gears,
+        curvature,
+        kappa_max=1.0 / radius,
+        rate=curvature_rate(radius, settings.full_lock_distance_m),
+        ds=0.45 * float(problem.grid.resolution_m),
+        free=problem.checker.free,
+    )
+    if steered.kept_runs:
+        warnings.append(
+            f"{steered.kept_runs} of {steered.runs} stretches between gear changes keep "
+            "steps in their steering: with ramps they would touch an obstacle or leave "
+            "the turn radius"
+        )
+    return steered
+
+
+def _curvature_rates(poses: NDArray[np.float64], gears: NDArray[np.int8]) -> NDArray[np.float64]:
+    """|change of curvature| per metre between consecutive motions of one gear, 1/m²,
+    measured from the poses."""
+    kappa, arcs = pose_curvatures(poses)
+    same = gears[1:-1] == gears[:-2]
+    mid = 0.5 * (arcs[1:] + arcs[:-1])
+    ok = same & (mid > 1e-9)
+    return np.abs(np.diff(kappa))[ok] / mid[ok]
 
 
 def _checked_world_path(

@@ -42,6 +42,8 @@ def car_plan_record(result: CarPlanResult, map_file: str | Path | None = None) -
     ``clearance_ratio`` (``median`` and ``p10``, the 10th percentile, over the poses: 1 on the
     middle line of the free space, 0 at a wall),
     ``max_curvature_per_m`` and ``curvature_limit_per_m`` (1 / min turn radius),
+    ``max_curvature_rate_per_m2`` (measured from the poses, within each gear) and
+    ``curvature_rate_limit_per_m2`` (None with ``--full-lock-distance 0``),
     ``goal_error_m``/``goal_error_deg`` (last pose to the goal), ``expanded``, ``timings_ms``,
     ``trajectory_s``, ``time_to_goal_s``, ``goal_reached``, ``warnings`` (a search cut short by
     the time budget), ``tracking``.
@@ -72,6 +74,7 @@ def car_plan_record(result: CarPlanResult, map_file: str | Path | None = None) -
             "cost_penalty": s.cost_penalty,
             "inflation_radius_m": s.inflation_radius_m,
             "max_planning_time_s": s.max_planning_time_s,
+            "full_lock_distance_m": s.full_lock_distance_m,
         },
         "limits": {k: getattr(result.limits, k) for k in result.limits.__dataclass_fields__},
         "length_m": result.length_m,
@@ -83,6 +86,8 @@ def car_plan_record(result: CarPlanResult, map_file: str | Path | None = None) -
         },
         "max_curvature_per_m": result.max_curvature,
         "curvature_limit_per_m": 1.0 / s.min_turn_radius_m,
+        "max_curvature_rate_per_m2": result.max_curvature_rate,
+        "curvature_rate_limit_per_m2": result.curvature_rate_limit,
         "goal_error_m": err_m,
         "goal_error_deg": math.degrees(err_rad),
         "expanded": result.expanded,
