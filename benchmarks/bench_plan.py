@@ -33,8 +33,19 @@ radius between seeded far-apart poses on the building floors. Beside each: OMPL'
 on its Reeds-Shepp (or Dubins) state space with our exact footprint test, each given the larger
 of our time and 1 s, then OMPL's simplifier; the ratio is our length over OMPL's best.
 
+Then the car-like planner's centring and steering, on the docs' Stata example and seeded
+far-apart poses on both floors: today's shortest path (`--cost-penalty 0 --full-lock-distance
+0`, the planner before the centring cost) beside the defaults, each with its length, the
+clearance ratio along it (median and 10th percentile, measured by `tests/planning_data.py`
+independently of the planner's cost field), the largest curvature rate measured from the poses,
+the search's states and the warm wall time of `plan_car`. Beside them, OMPL's RRT* and BIT* on
+the Reeds-Shepp space optimising the same centring cost (`StateCostIntegralObjective` with 1 +
+the cell's cost), given at least 2 s, against ours with `--reverse-penalty 1` (OMPL cannot
+price reversing), both priced by one function. Last, Nav2 Smac Hybrid-A*'s documented
+behaviour beside ours.
+
 Usage: python benchmarks/bench_plan.py [MAPS_DIR] [--size 4000] [--pairs 4] [--seed 0]
-       [--no-maze-reference] [--no-startup] [--no-maze] [--no-car]
+       [--no-maze-reference] [--no-startup] [--no-maze] [--no-car] [--no-centring]
 """
 
 from __future__ import annotations
@@ -285,6 +296,7 @@ def main() -> None:
     parser.add_argument("--no-maze", action="store_true")
     parser.add_argument("--no-startup", action="store_true")
     parser.add_argument("--no-car", action="store_true")
+    parser.add_argument("--no-centring", action="store_true")
     args = parser.parse_args()
 
     if not args.no_startup:
@@ -342,6 +354,9 @@ def main() -> None:
     if not args.no_car:
         print()
         car(args.maps, args.seed)
+    if not args.no_centring:
+        print()
+        car_centring(args.maps, args.seed)
 
 
 def car(maps: Path, seed: int) -> None:
@@ -413,6 +428,146 @@ def car(maps: Path, seed: int) -> None:
             f"{ratio} {ratio1} {result.min_clearance_m:8.3f} {result.max_curvature * radius:7.3f}"
         )
     print("max k: the path's largest curvature times R (at most 1); goal: ours/best <= 1.1")
+
+
+NAV2_SMAC = (
+    (
+        "cost of a cell",
+        "costmap inflation: exp decay from the inscribed radius",
+        "(1 - d/m)², m = largest d within --inflation-radius",
+    ),
+    ("cost weight", "cost_penalty 2.0 (cost / 252)", "--cost-penalty 8"),
+    (
+        "keeps to the middle",
+        "where inflation reaches across the corridor",
+        "by construction (0 on the middle line, as far as 1.5 m sees)",
+    ),
+    ("reversing", "reverse_penalty 2.0", "--reverse-penalty 2"),
+    (
+        "obstacle heuristic",
+        "2-D Dijkstra over the costmap, cost included",
+        "the same, exact 8-connected, cost included",
+    ),
+    ("distance heuristic", "precomputed Reeds-Shepp lookup table", "Reeds-Shepp length, computed"),
+    ("analytic expansion", "every few nodes, cost-blind", "near the goal only when costed"),
+    (
+        "smoother",
+        "gradient smoother: w_smooth, w_data; curvature not rate-limited",
+        "curvature ramps at --full-lock-distance, anchored every 3 m, poses checked",
+    ),
+    ("collision check", "footprint on the costmap", "exact footprint polygon on the cells"),
+    (
+        "time limit",
+        "max_planning_time 5 s: fails past it",
+        "--max-planning-time 5 s: a greedy search, then an error",
+    ),
+)
+
+
+def car_centring(maps: Path, seed: int) -> None:
+    """The centring and steering table of the module doc."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from planning_data import (  # type: ignore[import-not-found]
+        SMALL_CAR,
+        SMALL_RADIUS_M,
+        clearance_ratios,
+        far_poses,
+        ompl_car_length,
+        path_cost,
+    )
+
+    from slamcli.planning.car import CarSettings, car_blocked, plan_car
+    from slamcli.planning.car_motion import CarLimits
+    from slamcli.planning.costmap import centring_cost, clearance_ratio
+    from slamcli.planning.planner import load_map
+
+    limits = CarLimits(max_speed=1.0, wheelbase_m=0.54, min_turn_radius_m=SMALL_RADIUS_M)
+    grids = {}
+    cases = [("docs' Stata example", "stata_basement", (24.4, -2.4, 0.7), (-54.5, 5.7, -1.94))]
+    for name in BUILDINGS:
+        grids[name] = load_map(maps / f"{name}.yaml")[0]
+        blocked = car_blocked(grids[name], "blocked")
+        for k, (a, b) in enumerate(far_poses(grids[name], blocked, 0.8, 3, seed)):
+            cases.append((f"{name} #{k}", name, a, b))
+
+    def run(grid: Any, a: tuple, b: tuple, settings: Any) -> tuple[Any, float]:
+        plan_car(grid, a, b, settings, limits)  # warm
+        t = time.perf_counter()
+        result = plan_car(grid, a, b, settings, limits)
+        return result, time.perf_counter() - t
+
+    def rates(result: Any) -> float:
+        from slamcli.planning.steering import pose_curvatures
+
+        kappa, arcs = pose_curvatures(result.poses)
+        same = result.direction[1:-1] == result.direction[:-2]
+        per_m = np.abs(np.diff(kappa))[same] / (0.5 * (arcs[1:] + arcs[:-1]))[same]
+        return float(per_m.max()) if len(per_m) else 0.0
+
+    print(
+        f"car-like centring (seed {seed}; 0.9 x 0.6 m, R 1.2 m; rate limit "
+        f"{1 / (SMALL_RADIUS_M * 0.5):.2f} 1/m² = full lock over 0.5 m): today = "
+        "--cost-penalty 0 --full-lock-distance 0"
+    )
+    print(
+        f"{'query':22s} {'today m':>8s} {'med':>5s} {'p10':>5s} {'rate':>7s} {'states':>7s} "
+        f"{'ms':>5s} | {'ours m':>7s} {'x':>5s} {'med':>5s} {'p10':>5s} {'rate':>5s} "
+        f"{'states':>7s} {'ms':>5s}  warnings"
+    )
+    worst_ms = 0.0
+    for label, name, a, b in cases:
+        grid = grids[name]
+        today, t_today = run(
+            grid,
+            a,
+            b,
+            CarSettings(SMALL_CAR, SMALL_RADIUS_M, cost_penalty=0.0, full_lock_distance_m=None),
+        )
+        ours, t_ours = run(grid, a, b, CarSettings(SMALL_CAR, SMALL_RADIUS_M))
+        worst_ms = max(worst_ms, t_ours * 1000)
+        r0 = clearance_ratios(grid, today.blocked, today.poses)
+        r1 = clearance_ratios(grid, ours.blocked, ours.poses)
+        print(
+            f"{label:22s} {today.length_m:8.1f} {np.median(r0):5.2f} {np.percentile(r0, 10):5.2f} "
+            f"{rates(today):7.1f} {today.expanded:7d} {t_today * 1000:5.0f} | "
+            f"{ours.length_m:7.1f} {ours.length_m / today.length_m:5.2f} {np.median(r1):5.2f} "
+            f"{np.percentile(r1, 10):5.2f} {rates(ours):5.2f} {ours.expanded:7d} "
+            f"{t_ours * 1000:5.0f}  {len(ours.warnings)}"
+        )
+    print(f"worst warm plan_car time with the defaults: {worst_ms:.0f} ms")
+
+    print()
+    print("the same centring cost, OMPL on the Reeds-Shepp space (cost = sum ds (1 + 8 c)):")
+    print(
+        f"{'query':22s} {'ours':>8s} {'RRT*':>8s} {'BIT*':>8s} {'budget s':>8s} {'ours/best':>9s}"
+    )
+    for label, name, a, b in cases[:3]:
+        grid = grids[name]
+        settings = CarSettings(SMALL_CAR, SMALL_RADIUS_M, reverse_weight=1.0)
+        ours, t_ours = run(grid, a, b, settings)
+        blocked = ours.blocked
+        cost = 8.0 * centring_cost(clearance_ratio(blocked, grid.resolution_m, 1.5))
+        mine = path_cost(grid, cost, ours.poses)
+        budget = max(2.0, t_ours)
+        ref = ompl_car_length(
+            grid, blocked, SMALL_CAR, SMALL_RADIUS_M, a, b, time_s=budget, cost=cost
+        )
+
+        def fmt(v: float | None) -> str:
+            return f"{v:8.1f}" if v is not None else f"{'none':>8s}"
+
+        best = ref["best"]
+        ratio = f"{mine / best:9.3f}" if best else f"{'-':>9s}"
+        print(
+            f"{label:22s} {mine:8.1f} {fmt(ref['RRTstar'])} {fmt(ref['BITstar'])} "
+            f"{budget:8.1f} {ratio}"
+        )
+
+    print()
+    print("Nav2 Smac Hybrid-A* (its documentation's defaults) beside ours:")
+    for what, smac, mine_text in NAV2_SMAC:
+        print(f"  {what:20s} Smac: {smac}")
+        print(f"  {'':20s} ours: {mine_text}")
 
 
 if __name__ == "__main__":

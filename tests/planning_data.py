@@ -90,10 +90,16 @@ def ompl_car_length(
     time_s: float = 2.0,
     planners: tuple[str, ...] = ("RRTstar", "BITstar"),
     seed: int = 1,
+    cost: np.ndarray | None = None,
 ) -> dict[str, Any]:
     """The shortest path OMPL finds in ``time_s`` per planner, simplified; ``{planner: length
     m or None}`` plus ``best``. Validity is our exact footprint test; motions are checked
-    every quarter cell."""
+    every quarter cell.
+
+    With ``cost`` (H, W: extra cost per metre of each cell, as the planner's centring cost),
+    the objective is OMPL's ``StateCostIntegralObjective`` with state cost ``1 + cost`` at
+    the state's cell (trapezoids between states), and the figures are path costs
+    (:func:`path_cost`), not lengths; no simplification, which shortens without pricing."""
     from ompl import base as ob
     from ompl import geometric as og
     from ompl import util as ou
@@ -133,17 +139,58 @@ def ompl_car_length(
             s.setY(q[1])
             s.setYaw(q[2])
         ss.setStartAndGoalStates(a, b)
-        ss.getProblemDefinition().setOptimizationObjective(ob.PathLengthOptimizationObjective(si))
+        if cost is None:
+            objective = ob.PathLengthOptimizationObjective(si)
+        else:
+            objective = _cell_cost_objective()(si, grid, cost)
+        ss.getProblemDefinition().setOptimizationObjective(objective)
         ss.setPlanner(getattr(og, name)(si))
         solved = ss.solve(time_s)
         length = None
         if solved and ss.haveExactSolutionPath():
-            ss.simplifySolution(max(0.2, 0.25 * time_s))
-            length = float(ss.getSolutionPath().length())
+            if cost is None:
+                ss.simplifySolution(max(0.2, 0.25 * time_s))
+                length = float(ss.getSolutionPath().length())
+            else:
+                path = ss.getSolutionPath()
+                path.interpolate(max(2, int(path.length() / (0.5 * grid.resolution_m))))
+                states = [path.getState(i) for i in range(path.getStateCount())]
+                poses = np.array([[q.getX(), q.getY(), q.getYaw()] for q in states])
+                length = path_cost(grid, cost, poses)
         out[name] = length
     found = [v for v in out.values() if v is not None]
     out["best"] = min(found) if found else None
     return out
+
+
+def path_cost(grid: OccupancyGrid, cost: np.ndarray, poses: np.ndarray) -> float:
+    """Σ over consecutive poses of ``distance · (1 + mean cost of the two poses' cells)``:
+    the centring cost of a path, the same way for ours and OMPL's."""
+    uv = world_to_uv(grid, poses[:, :2]).astype(np.int64)
+    h, w = cost.shape
+    c = cost[np.clip(uv[:, 1], 0, h - 1), np.clip(uv[:, 0], 0, w - 1)]
+    step = np.hypot(*np.diff(poses[:, :2], axis=0).T)
+    return float(np.sum(step * (1.0 + 0.5 * (c[1:] + c[:-1]))))
+
+
+def _cell_cost_objective() -> Any:
+    from ompl import base as ob
+
+    class CellCost(ob.StateCostIntegralObjective):  # type: ignore[misc]
+        """OMPL's integral objective with a state cost of 1 + the cell's extra cost."""
+
+        def __init__(self, si: Any, grid: OccupancyGrid, cost: np.ndarray) -> None:
+            super().__init__(si, False)
+            self.grid = grid
+            self.cost = cost
+
+        def stateCost(self, state: Any) -> Any:
+            u, v = world_to_uv(self.grid, [state.getX(), state.getY()])
+            h, w = self.cost.shape
+            c = self.cost[min(max(int(v), 0), h - 1), min(max(int(u), 0), w - 1)]
+            return ob.Cost(1.0 + float(c))
+
+    return CellCost
 
 
 def clearance_ratios(

@@ -537,3 +537,25 @@ def test_world_to_uv_agrees_with_the_map_cells() -> None:
     xy = rng.uniform(-1, 2, size=(100, 2))
     uv = world_to_uv(grid, xy)
     np.testing.assert_array_equal(np.floor(uv[:, ::-1]).astype(np.int64), world_to_cell(grid, xy))
+
+
+def test_round_robot_centring_is_optional_and_clears_the_walls() -> None:
+    """--cost-penalty on the grid planner: off by default (the exact shortest path stays), on
+    it keeps the path farther from the walls, measured by the grid path's clearance ratio."""
+    from planning_data import clearance_ratios
+
+    grid = read_map(shared_path("maps", "turtlebot3_world.yaml"))
+    shortest = plan(grid, (-2.0, -0.5), (2.0, 0.5))
+    again = plan(grid, (-2.0, -0.5), (2.0, 0.5), cost_penalty=0.0)
+    assert again.grid_cost_m == shortest.grid_cost_m
+    centred = plan(grid, (-2.0, -0.5), (2.0, 0.5), cost_penalty=2.0)
+    assert centred.search.method == "astar"
+    assert centred.min_clearance_m > shortest.min_clearance_m
+    blocked = shortest.costmap.blocked
+
+    def ratio(result: PlanResult) -> float:
+        xy = np.asarray(result.smooth_xy)
+        poses = np.column_stack((xy, np.zeros(len(xy))))
+        return float(np.median(clearance_ratios(grid, blocked, poses)))
+
+    assert ratio(centred) > ratio(shortest)

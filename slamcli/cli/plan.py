@@ -48,14 +48,19 @@ or a centred rectangle 'LENGTHxWIDTH'), headings in --start/--goal as x,y,yaw (y
 many metres forwards; 1 gives the shortest path). The search is Hybrid-A* with Reeds-Shepp \
 (Dubins without reversing) curves to the goal; the footprint is checked against the occupied \
 (and, with --unknown blocked, unknown) cells at every pose, at most half a cell apart, not as \
-an inflated circle. The path keeps its curvature within 1/R, stops at each gear change, is \
-timed under --max-speed, --max-accel, --max-yaw-rate and --max-lateral-accel, and a \
-bicycle-model robot (--wheelbase) follows it. --robot-radius, --clearance-weight and \
---obstacles are for --motion diff only.
+an inflated circle. A centring cost keeps the path near the middle of the free space \
+(--cost-penalty, default 8; --inflation-radius, how far around a point the middle is looked \
+for; --cost-penalty 0 gives the shortest path). The path keeps its curvature within 1/R and \
+ramps it at most 1/(R x --full-lock-distance) per metre (0.5 m from straight to full lock), \
+stops at each gear change, is timed under --max-speed, --max-accel, --max-yaw-rate and \
+--max-lateral-accel, and a bicycle-model robot (--wheelbase) follows it. --max-planning-time \
+bounds the search. --robot-radius, --clearance-weight and --obstacles are for --motion diff \
+only; --cost-penalty also centres the round robot's path (default 0 there).
 
 Writes into --out (default ./plan): path.csv, path_smooth.csv (x,y), trajectory.csv and \
 tracked.csv (t,x,y,theta,v,omega), plan.json (with the time of each stage) and plan.png. With \
---motion ackermann: path.csv (x,y,yaw,direction,curvature; direction -1 when reversing), \
+--motion ackermann: path.csv (x,y,yaw,direction,curvature,steering; direction -1 when \
+reversing), \
 path_search.csv (the search's poses), trajectory.csv and tracked.csv (v < 0 reversing), \
 plan.json (length, reversals, min clearance, max curvature, goal error, stage times) and \
 plan.png.
