@@ -27,6 +27,11 @@ which the steering may go from straight ahead to full lock:
    exact test of :mod:`slamcli.planning.footprint`); otherwise the run keeps its arcs and
    lines, and the caller reports it.
 
+A run that cannot keep both ends (a short stretch at full lock with a jump in it, where no
+ramp fits) may end up to :data:`MAX_GEAR_SHIFT_M` and :data:`MAX_GEAR_TURN_DEG` from its gear
+change, its last stretch ramped and not corrected; the next run starts where it ends. The goal
+is always kept.
+
 At a gear change the vehicle stops, and may turn its wheels while standing: the curvature of
 one run's end and the next run's start are independent (as in Fraichard and Scheuer's
 continuous-curvature paths with cusps, which also allow a standstill change).
@@ -53,6 +58,10 @@ FULL_LOCK_DISTANCE_M = 0.5
 _NEWTON_STEPS = 20
 RAMP_SHARE = 0.75
 """Share of the rate limit the ramps use; the corrections of the anchors get the rest."""
+MAX_GEAR_SHIFT_M = 0.10
+"""How far a gear change may move when the run before it cannot end exactly there."""
+MAX_GEAR_TURN_DEG = 5.0
+"""How far its heading may turn then."""
 CHUNK_M = 3.0
 """Length of the stretches at whose ends the ramped path is brought back onto the input's
 poses."""
@@ -114,25 +123,54 @@ def steered_path(
     at most; ``free`` tests the footprint at (M, 3) poses."""
     n = len(poses)
     starts = [0, *(np.flatnonzero(np.diff(direction[:-1].astype(np.int64)) != 0) + 1), n - 1]
-    out_p: list[F64] = [poses[:1]]
-    out_g: list[NDArray[np.int8]] = []
-    out_k: list[F64] = []
+    pairs = [(a, b) for a, b in itertools.pairwise(starts) if b > a]
     kept = 0
-    runs = 0
-    for a, b in itertools.pairwise(starts):
-        if b <= a:
-            continue
-        runs += 1
-        gear = float(direction[a])
-        run = _steer_run(poses[a : b + 1], curvature[a:b], gear, kappa_max, rate, ds, free)
+    done: list[tuple[F64, F64, F64]] = []  # (start pose, poses, curvatures) per run
+
+    def steer(i: int, start: F64, open_end: bool) -> tuple[F64, F64] | None:
+        a, b = pairs[i]
+        return _steer_run(
+            poses[a : b + 1],
+            curvature[a:b],
+            float(direction[a]),
+            kappa_max,
+            rate,
+            ds,
+            free,
+            start=start,
+            open_end=open_end,
+        )
+
+    start = poses[0]
+    for i, (a, b) in enumerate(pairs):
+        open_end = i < len(pairs) - 1
+        run = steer(i, start, open_end)
+        if run is None and not np.array_equal(start, poses[a]):
+            # The run before moved this gear change and this run cannot start there: the
+            # run before is redone keeping the gear change where the search put it.
+            before_start = done[-1][0]
+            again = steer(i - 1, before_start, False)
+            if again is None and not np.array_equal(before_start, poses[pairs[i - 1][0]]):
+                return SteeredPath(poses, direction, curvature, len(pairs), len(pairs))
+            pa, pb = pairs[i - 1]
+            if again is None:
+                kept += 1
+                again = (poses[pa + 1 : pb + 1], curvature[pa:pb])
+            done[-1] = (before_start, *again)
+            start = poses[a]
+            run = steer(i, start, open_end)
         if run is None:
             kept += 1
-            p, k = poses[a + 1 : b + 1], curvature[a:b]
-        else:
-            p, k = run
-        out_p.append(p)
-        out_k.append(k)
-        out_g.append(np.full(len(k), direction[a], dtype=np.int8))
+            run = (poses[a + 1 : b + 1], curvature[a:b])
+        done.append((start, *run))
+        start = run[0][-1]
+    runs = len(pairs)
+    out_p: list[F64] = [poses[:1], *(d[1] for d in done)]
+    out_k: list[F64] = [d[2] for d in done]
+    out_g: list[NDArray[np.int8]] = [
+        np.full(len(d[2]), direction[a], dtype=np.int8)
+        for d, (a, _) in zip(done, pairs, strict=True)
+    ]
     g = np.concatenate(out_g)
     k = np.concatenate(out_k)
     return SteeredPath(
@@ -166,9 +204,16 @@ def _steer_run(
     rate: float,
     ds: float,
     free: Callable[[F64], NDArray[np.bool_]],
+    *,
+    start: F64 | None = None,
+    open_end: bool = False,
 ) -> tuple[F64, F64] | None:
     """One gear run (its poses, first to last, and the curvature of each motion) with ramped
-    curvature and its end pose kept, or None when a check fails."""
+    curvature, from ``start`` (the run's first pose unless a gear change moved) and with its
+    end pose kept; or None when a check fails. With ``open_end`` (the run ends at a gear
+    change, not the goal) a run whose end cannot be kept may end up to
+    :data:`MAX_GEAR_SHIFT_M` and :data:`MAX_GEAR_TURN_DEG` away from it, its last stretch
+    ramped and not corrected."""
     _, arcs = pose_curvatures(run)
     length = float(arcs.sum())
     if length <= 0.0:
@@ -188,8 +233,55 @@ def _steer_run(
         box = target.copy()
     # Every CHUNK_M or so, the ramped path is brought back onto the input's pose there, so it
     # never strays further than the ramps of one chunk move it.
+    first = run[0] if start is None else start
     chunks = max(1, round(length / CHUNK_M))
     bounds = np.linspace(0, m, chunks + 1).round().astype(np.int64)
+    out = None
+    for open_last in (False, True) if open_end else (False,):
+        out = _anchored(
+            run, edges, kappa_in, box, bounds, first, gear, step, kappa_max, rate, open_last
+        )
+        if out is not None:
+            break
+    if out is None:
+        return None
+    kappa, steps, parts = out
+    if open_end:
+        end = parts[-1][-1]
+        shift = math.hypot(end[0] - run[-1, 0], end[1] - run[-1, 1])
+        turn = abs(_wrap(end[2] - run[-1, 2]))
+        if shift > MAX_GEAR_SHIFT_M or math.degrees(turn) > MAX_GEAR_TURN_DEG:
+            return None
+    poses = np.vstack(parts)
+    if np.abs(kappa).max() > kappa_max * (1.0 + 1e-9):
+        return None
+    spacing = np.abs(steps)
+    if m > 1 and (np.abs(np.diff(kappa)) / spacing[1:]).max() > rate * _RATE_TOL:
+        return None
+    if not free(poses).all():
+        return None
+    return poses, kappa
+
+
+def _anchored(
+    run: F64,
+    edges: F64,
+    kappa_in: F64,
+    box: F64,
+    bounds: NDArray[np.int64],
+    first: F64,
+    gear: float,
+    step: float,
+    kappa_max: float,
+    rate: float,
+    open_last: bool,
+) -> tuple[F64, F64, list[F64]] | None:
+    """The ramped profile ``box`` corrected stretch by stretch (``bounds``, in steps) onto the
+    input run's poses, from ``first``: the curvatures, the signed steps and each stretch's
+    poses; with ``open_last`` the last stretch is left uncorrected. None when a stretch
+    cannot be closed even joined with its neighbours."""
+    m = len(box)
+    chunks = len(bounds) - 1
     kappa = box.copy()
     steps = np.full(m, gear * step)
     # Accepted stretches: (first step, end step, start pose, poses).
@@ -197,12 +289,18 @@ def _steer_run(
     j = 0
     k_min = 1
     while j < chunks:
-        start = run[0] if not done else done[-1][3][-1]
+        start = first if not done else done[-1][3][-1]
         part = None
         # A stretch mostly at full lock has little room for the correction: it is joined
         # with the next until the correction fits, and at the run's end with the one before.
         for k in range(max(j + 1, k_min), chunks + 1):
             i0, i1 = bounds[j], bounds[k]
+            if open_last and i1 == m:
+                # The last stretch ramped and left where it ends.
+                free_end = _integrate(start, box[i0:i1], gear * step)
+                part = (box[i0:i1].copy(), free_end, gear * step)
+                end = free_end[-1]
+                break
             end = run[-1] if i1 == m else _pose_at(run, edges, kappa_in, gear, i1 * step)
             kappa_before = box[0] if i0 == 0 else kappa[i0 - 1]
             part = _close(
@@ -222,16 +320,7 @@ def _steer_run(
         poses_part[-1] = end
         done.append((i0, i1, start, poses_part))
         j = k
-    parts = [d[3] for d in done]
-    poses = np.vstack(parts)
-    if np.abs(kappa).max() > kappa_max * (1.0 + 1e-9):
-        return None
-    spacing = np.abs(steps)
-    if m > 1 and (np.abs(np.diff(kappa)) / spacing[1:]).max() > rate * _RATE_TOL:
-        return None
-    if not free(poses).all():
-        return None
-    return poses, kappa
+    return kappa, steps, [d[3] for d in done]
 
 
 def _pose_at(run: F64, edges: F64, kappa_in: F64, gear: float, s: float) -> F64:
