@@ -496,14 +496,6 @@ def car_centring(maps: Path, seed: int) -> None:
         result = plan_car(grid, a, b, settings, limits)
         return result, time.perf_counter() - t
 
-    def rates(result: Any) -> float:
-        from slamcli.planning.steering import pose_curvatures
-
-        kappa, arcs = pose_curvatures(result.poses)
-        same = result.direction[1:-1] == result.direction[:-2]
-        per_m = np.abs(np.diff(kappa))[same] / (0.5 * (arcs[1:] + arcs[:-1]))[same]
-        return float(per_m.max()) if len(per_m) else 0.0
-
     print(
         f"car-like centring (seed {seed}; 0.9 x 0.6 m, R 1.2 m; rate limit "
         f"{1 / (SMALL_RADIUS_M * 0.5):.2f} 1/m² = full lock over 0.5 m): today = "
@@ -529,9 +521,9 @@ def car_centring(maps: Path, seed: int) -> None:
         r1 = clearance_ratios(grid, ours.blocked, ours.poses)
         print(
             f"{label:22s} {today.length_m:8.1f} {np.median(r0):5.2f} {np.percentile(r0, 10):5.2f} "
-            f"{rates(today):7.1f} {today.expanded:7d} {t_today * 1000:5.0f} | "
+            f"{today.max_curvature_rate:7.1f} {today.expanded:7d} {t_today * 1000:5.0f} | "
             f"{ours.length_m:7.1f} {ours.length_m / today.length_m:5.2f} {np.median(r1):5.2f} "
-            f"{np.percentile(r1, 10):5.2f} {rates(ours):5.2f} {ours.expanded:7d} "
+            f"{np.percentile(r1, 10):5.2f} {ours.max_curvature_rate:5.2f} {ours.expanded:7d} "
             f"{t_ours * 1000:5.0f}  {len(ours.warnings)}"
         )
     print(f"worst warm plan_car time with the defaults: {worst_ms:.0f} ms")

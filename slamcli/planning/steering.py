@@ -100,9 +100,7 @@ def pose_curvatures(poses: F64) -> tuple[F64, F64]:
     heading change: exact for arcs) and the arc lengths (m) between consecutive poses."""
     dyaw = np.angle(np.exp(1j * np.diff(poses[:, 2])))
     chord = np.hypot(*np.diff(poses[:, :2], axis=0).T)
-    half = dyaw / 2.0
-    sinc = np.where(np.abs(half) > 1e-12, np.sin(half) / np.where(half == 0, 1.0, half), 1.0)
-    arc = chord / sinc
+    arc = chord / np.sinc(dyaw / (2.0 * np.pi))
     with np.errstate(invalid="ignore", divide="ignore"):
         kappa = np.where(arc > 1e-12, dyaw / arc, 0.0)
     return kappa, arc
@@ -187,10 +185,8 @@ def _integrate(start: F64, kappa: F64, step: float) -> F64:
     and curvature ``kappa`` from ``start``."""
     turn = kappa * step
     yaw = start[2] + np.concatenate(([0.0], np.cumsum(turn)))
-    half = turn / 2.0
-    sinc = np.where(np.abs(half) > 1e-12, np.sin(half) / np.where(half == 0, 1.0, half), 1.0)
-    chord = step * sinc
-    heading = yaw[:-1] + half
+    chord = step * np.sinc(turn / (2.0 * np.pi))
+    heading = yaw[:-1] + turn / 2.0
     x = start[0] + np.cumsum(chord * np.cos(heading))
     y = start[1] + np.cumsum(chord * np.sin(heading))
     return np.column_stack((x, y, yaw[1:]))
