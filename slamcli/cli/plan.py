@@ -79,6 +79,10 @@ Examples:
 
 [bold]slamcli plan ../shared/data/maps/building_31.yaml --motion ackermann --footprint 0.9x0.6 \
 --min-turn-radius 1.2 --start 0,0,0 --goal 5.5,14,1.57 --out plan_car[/]
+
+[bold]slamcli plan ../shared/data/maps/building_31.yaml --motion ackermann --footprint 0.9x0.6 \
+--min-turn-radius 1.2 --start 0,0,0 --goal 5.5,14,1.57 --cost-penalty 0 --full-lock-distance 0 \
+--out plan_car_shortest[/] (the shortest path, of arcs and straight lines)
 """
 
 
