@@ -262,6 +262,11 @@ def integrate(pim: P, readings: tuple[F64, F64, F64]) -> P:
     piecewise-constant ``readings`` of :func:`interval_readings` (durations, gyro, accel);
     returns it."""
     dt, gyro, accel = readings
+    # GTSAM turns each piece's specific force by the rotation at the piece's start; the body
+    # turns by ω·dt during it. Turned half that way the force gets the piece's mean rotation,
+    # exact to second order. Left out, a body pitching at 0.1 rad/s reads gravity askew by
+    # ½·ω·dt·g ≈ 2.5 mm/s² at 200 Hz: a false acceleration of 1 % of a gentle motion's.
+    accel = accel + 0.5 * dt[:, None] * np.cross(gyro, accel)
     for step, w, f in zip(dt.tolist(), gyro, accel, strict=True):
         pim.integrateMeasurement(f, w, step)  # type: ignore[attr-defined]
     return pim
