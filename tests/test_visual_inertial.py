@@ -14,11 +14,13 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import shared_path
+from visual_data import SLOW_LOOP_KEY, render_slow_loop
 
 from slamcli.evaluation import evaluate
 from slamcli.formats.euroc import EurocSource
 from slamcli.formats.trajectory import read_trajectory
 from slamcli.pipelines.visual import VisualConfig
+from slamcli.pipelines.visual.inertial import SCALE_DOUBT_STD
 from slamcli.run import RunOutcome, run_pipeline
 
 MH05_FRAMES = 140
@@ -64,6 +66,8 @@ def test_mh05_initialises_in_flight_within_4_s(mh05: Shared) -> None:
     assert first["after_s"] <= 4.0
     # The monocular map had no metric scale: the initialisation found one.
     assert first["scale"] > 0 and first["scale_std"] <= 0.05
+    # The flight accelerates hard: its 7 s fix the scale to a fraction of a per cent.
+    assert inertial["scale_determination"]["std"] <= 0.005
 
 
 def test_mh05_metric_trajectory(mh05: Shared, mh05_truth: object) -> None:
@@ -169,9 +173,15 @@ STEREO_ATE_PER_PATH = 0.003
 """Stereo-inertial SE(3) ATE, as a share of the path (the issue's 0.3 %)."""
 MONO_ATE_PER_PATH = 0.01
 """Monocular-inertial SE(3) ATE (no scale fitted), as a share of the path."""
-MONO_SCALE_ERROR = 0.015
-"""Monocular-inertial |Sim(3) scale - 1|. The issue asks 1 %; rendered seeds give 0-1.4 % at
-640x480 (docs/visual.md: a bias the optimum holds, not yet explained)."""
+MONO_SCALE_ERROR = 0.01
+"""Monocular-inertial |Sim(3) scale - 1| on the 640x480 seeds of ``make test-robust`` (the
+issue's 1 %; found 0.05-0.64 %). 10 s of the loop bound the scale's standard deviation at
+1.0 % with perfect vision (slamcli.inertial.observability), so other seeds can miss it: seeds
+7 and 9's IMU noise alone puts the truth 1.5-1.6 % off."""
+SMALL_RIG_SCALE_ERROR = 0.04
+"""The same on the suite's rig (8 s, 320x240, seed 0): its IMU noise alone puts the truth
+1.2 % off (the bound is 0.76 %) and vision at half the resolution bends the path's shape;
+found 3.0 %."""
 GRAVITY_DEG = 0.5
 """Angle between the run's vertical and the ground truth's."""
 BLANK_RATIO = 2.0
@@ -229,6 +239,8 @@ def test_stereo_inertial_known_answer(rendered_rig: Path, tmp_path: Path) -> Non
     outcome = _run(rendered_rig, tmp_path / "run")
     got = synth_scores(rendered_rig, outcome.run_dir)
     assert got["frames"] == 160
+    # The stereo baseline gives the scale: nothing for the IMU to determine.
+    assert _record(outcome)["metrics"]["inertial"]["scale_determination"] is None
     assert got["ate"] <= STEREO_ATE_PER_PATH * got["path"]
     assert got["tilt_deg"] <= GRAVITY_DEG
     states = np.loadtxt(outcome.run_dir / "imu_states.csv", delimiter=",", skiprows=1)
@@ -253,3 +265,22 @@ def test_mono_inertial_known_answer(rendered_rig: Path, tmp_path: Path) -> None:
     assert got["frames"] >= 0.95 * 160
     assert got["ate"] <= MONO_ATE_PER_PATH * got["path"]
     assert got["tilt_deg"] <= 2 * GRAVITY_DEG
+    assert abs(got["scale"] - 1.0) <= SMALL_RIG_SCALE_ERROR
+    # How well 8 s of the loop fix the scale, and the IMU's own reading of the run's size.
+    record = _record(outcome)["metrics"]
+    scale = record["inertial"]["scale_determination"]
+    assert 0.004 <= scale["std"] <= 0.012
+    assert abs(scale["imu_scale"] - 1.0) <= 3 * scale["std"]
+    assert not record["doubts"]
+
+
+def test_mono_inertial_doubts_a_scale_its_motion_leaves_loose(
+    shared_artefact: Any, tmp_path: Path
+) -> None:
+    """18 s of the loop at a steady pace: the IMU cannot tell the size well, and says so."""
+    rig = shared_artefact(SLOW_LOOP_KEY, render_slow_loop) / "rig"
+    outcome = _run(rig, tmp_path / "run", mode="mono")
+    record = _record(outcome)["metrics"]
+    scale = record["inertial"]["scale_determination"]
+    assert scale["std"] > SCALE_DOUBT_STD
+    assert any("determines the metric scale only to" in d for d in record["doubts"])

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 import pytest
 from conftest import shared_path
+from visual_data import SLOW_LOOP_KEY, render_slow_loop
 
 from slamcli.errors import ConfigError, InputError
 from slamcli.evaluation import align
@@ -197,15 +198,14 @@ def test_grouped_matching_is_brute_force_within_groups() -> None:
 
 
 @pytest.fixture(scope="session")
-def synthetic_loop(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, RunOutcome]:
+def synthetic_loop(
+    tmp_path_factory: pytest.TempPathFactory, shared_artefact: Any
+) -> tuple[Path, RunOutcome]:
     """18 s of the rendered stereo rig (one turn around the room, back to the start), with
     noise, at 10 Hz as KITTI's cameras (twice the steps of EuRoC's 20 Hz between pairs), and
     its run."""
-    from slamcli.synth.stereo import render_stereo_sequence
-
-    root = tmp_path_factory.mktemp("synth_stereo")
-    render_stereo_sequence(root / "rig", frames=180, size=(320, 240), noise=True, seed=0, fps=10)
-    return root / "rig", run_pipeline(root / "rig", "visual", root / "run")
+    rig = shared_artefact(SLOW_LOOP_KEY, render_slow_loop) / "rig"
+    return rig, run_pipeline(rig, "visual", tmp_path_factory.mktemp("synth_stereo") / "run")
 
 
 def test_synthetic_loop_is_closed_at_metric_scale(

@@ -124,3 +124,15 @@ def blanked_copy(folder: Path, out: Path, first: int, last: int) -> Path:
             else:
                 (out / name).symlink_to(folder / name)
     return out
+
+
+SLOW_LOOP_KEY = "stereo-loop-10hz"
+"""The ``shared_artefact`` key of :func:`render_slow_loop`'s folder."""
+
+
+def render_slow_loop(folder: Path) -> None:
+    """18 s of ``synth stereo`` at 10 Hz into ``folder / "rig"``: 180 pairs, 320x240, noise;
+    one turn around the room at a steady pace, back to the start."""
+    from slamcli.synth.stereo import render_stereo_sequence
+
+    render_stereo_sequence(folder / "rig", frames=180, size=(320, 240), noise=True, seed=0, fps=10)

@@ -41,13 +41,14 @@ from numpy.typing import NDArray
 from slamcli.errors import ConfigError, PipelineError
 from slamcli.formats.base import Prefetch, SourceInfo
 from slamcli.geometry import inverse
+from slamcli.inertial.observability import ScaleInformation
 from slamcli.pipelines import Evaluation, PipelineBase
 from slamcli.pipelines.timing import Stats
 from slamcli.pipelines.visual.atlas import Atlas, Keyframe
 from slamcli.pipelines.visual.bundle import BundleAdjuster
 from slamcli.pipelines.visual.config import VisualConfig
 from slamcli.pipelines.visual.frames import AnyFrame, Extracted, Frame, Rig, refine_poses
-from slamcli.pipelines.visual.inertial import Inertial
+from slamcli.pipelines.visual.inertial import SCALE_DOUBT_STD, Inertial
 from slamcli.pipelines.visual.initializer import MonoInitializer
 from slamcli.pipelines.visual.local_mapping import LocalMapping
 from slamcli.pipelines.visual.loop_closing import LoopClosing, essential_graph
@@ -435,10 +436,11 @@ class VisualSlam(PipelineBase):
         camera_from_body = inverse(body)
         return np.stack([inverse(p) @ camera_from_body for p in cam_from_world]).reshape(-1, 4, 4)
 
-    def _inertial_record(self, main: int | None) -> dict[str, Any]:
+    def _inertial_record(self, main: int | None, scale: ScaleInformation | None) -> dict[str, Any]:
         """The IMU's part of ``run.json``: whether the main map was initialised, the
         initialisations and refinements (when, scale, gravity, biases), and the last
-        keyframe's bias estimate, and the IMU clock's offset when a refusal estimated it."""
+        keyframe's bias estimate, how well the motion determined a monocular run's scale,
+        and the IMU clock's offset when a refusal estimated it."""
         chain = self.inertial.chain(main) if main is not None else []
         last = self.inertial.states[chain[-1].id] if chain else None
         clock = self.inertial.clock
@@ -449,13 +451,27 @@ class VisualSlam(PipelineBase):
             "events": self.inertial.records,
             "final_gyro_bias": None if last is None else [round(float(x), 7) for x in last[3:6]],
             "final_accel_bias": None if last is None else [round(float(x), 6) for x in last[6:9]],
+            "scale_determination": None
+            if scale is None
+            else {
+                "std": round(scale.std, 5),
+                "imu_scale": round(scale.scale, 5),
+                "keyframes": scale.keyframes,
+                "seconds": round(scale.duration_s, 3),
+            },
             "clock_offset": None if clock is None else dataclasses.asdict(clock),
         }
 
-    def _doubts(self, counts: dict[str, int], main: int | None = None) -> list[str]:
+    def _doubts(
+        self,
+        counts: dict[str, int],
+        main: int | None = None,
+        scale_info: ScaleInformation | None = None,
+    ) -> list[str]:
         """Why the result may be wrong, in words: loops refused as implausible (the first
-        few, then how many more), maps lost and joined again by a merge, frames left in maps
-        never merged into the main one."""
+        few, then how many more), maps lost and joined again by a merge, an IMU never
+        initialised, a monocular scale the motion leaves loose, frames left in maps never
+        merged into the main one."""
         loops = self.loops.doubts
         doubts = loops[:3]
         if len(loops) > 3:
@@ -479,6 +495,12 @@ class VisualSlam(PipelineBase):
                 f"{why}): the trajectory is not gravity-aligned"
                 + (" and has the map's arbitrary scale" if self.rig.mono else "")
             )
+        if scale_info is not None and scale_info.std > SCALE_DOUBT_STD:
+            doubts.append(
+                f"the motion determines the metric scale only to {100 * scale_info.std:.1f} % "
+                f"(one standard deviation, at best, over {scale_info.duration_s:.1f} s): the "
+                "camera accelerates too little for the IMU to tell its size"
+            )
         inertial_frames = counts.get("frames_inertial", 0)
         if inertial_frames:
             doubts.append(
@@ -497,6 +519,7 @@ class VisualSlam(PipelineBase):
         map ``main``, the counts and the records of maps, merges and loop closures."""
         smap = self.atlas.map
         kfs = smap.live(main)
+        scale = self.inertial.scale_determination(main) if main is not None else None
         keyframes = Trajectory(
             np.array([k.stamp_ns for k in kfs], np.int64),
             self._bodies([k.cam_from_world for k in kfs]),
@@ -528,8 +551,12 @@ class VisualSlam(PipelineBase):
                 "maps": [m.to_dict() for m in self.atlas.maps],
                 "merges": self.atlas.merges,
                 "loop_closures": self.loops.records,
-                "doubts": self._doubts(counts, main),
-                **({"inertial": self._inertial_record(main)} if self.inertial.enabled else {}),
+                "doubts": self._doubts(counts, main, scale),
+                **(
+                    {"inertial": self._inertial_record(main, scale)}
+                    if self.inertial.enabled
+                    else {}
+                ),
                 **({"imu_unused": self.imu_unused} if self.imu_unused else {}),
             },
             counts=counts,
