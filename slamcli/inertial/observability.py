@@ -38,7 +38,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slamcli.errors import InputError
-from slamcli.inertial.preintegration import ImuNoise, check_imu_samples, preintegrate
+from slamcli.inertial.preintegration import (
+    ImuNoise,
+    check_imu_samples,
+    integrate,
+    interval_readings,
+)
 
 F64 = NDArray[np.float64]
 
@@ -99,15 +104,22 @@ def scale_information(
     hat = np.zeros(3) if accel_bias is None else np.asarray(accel_bias, dtype=np.float64)
     gyro = np.zeros(3) if gyro_bias is None else np.asarray(gyro_bias, dtype=np.float64)
 
-    def delta(t0: int, t1: int, accel: F64) -> tuple[F64, F64]:
-        pim = preintegrate(*samples, t0, t1, gtsam.imuBias.ConstantBias(accel, gyro), params)
-        return np.concatenate([pim.deltaPij(), pim.deltaVij()]), pim.preintMeasCov()[3:, 3:]
+    def predicted(pim: gtsam.PreintegratedImuMeasurements, accel: F64) -> F64:
+        # From rest at the origin: GTSAM's first-order correction for another bias, gravity
+        # included (it cancels in the differences).
+        state = pim.predict(gtsam.NavState(), gtsam.imuBias.ConstantBias(accel, gyro))
+        return np.concatenate([state.position(), state.velocity()])
 
     intervals = []
     for t0, t1 in pairwise(stamps.tolist()):
-        measured, cov = delta(t0, t1, hat)
-        jac = np.stack([delta(t0, t1, hat + axis)[0] - measured for axis in np.eye(3)], axis=1)
-        intervals.append((float(t1 - t0) * 1e-9, measured, jac, np.linalg.inv(cov)))
+        pim = gtsam.PreintegratedImuMeasurements(params, gtsam.imuBias.ConstantBias(hat, gyro))
+        integrate(pim, interval_readings(*samples, t0, t1))
+        measured = np.concatenate([pim.deltaPij(), pim.deltaVij()])
+        base = predicted(pim, hat)
+        jac = np.stack([predicted(pim, hat + axis) - base for axis in np.eye(3)], axis=1)
+        # Whitening: root.T @ root is the inverse covariance.
+        root = np.linalg.cholesky(np.linalg.inv(pim.preintMeasCov()[3:, 3:])).T
+        intervals.append((float(t1 - t0) * 1e-9, measured, jac, root))
 
     from slamcli.inertial.initialisation import ACCEL_BIAS_SIGMA
 
@@ -116,64 +128,95 @@ def scale_information(
     g0 = np.array([0.0, 0.0, -noise.gravity_mps2])
     rotation = np.eye(3)
     scale, velocities, biases = 1.0, np.zeros((k, 3)), np.zeros((k - 1, 3))
-    info = np.eye(n)
+    # Factored keyframe by keyframe (velocity, then bias), scale and tilt last: a band.
+    per = np.concatenate([3 + 3 * np.arange(k)[:, None] + np.arange(3), np.zeros((k, 3), int)], 1)
+    per[: k - 1, 3:] = 3 + 3 * k + 3 * np.arange(k - 1)[:, None] + np.arange(3)
+    order = np.concatenate([per[: k - 1].ravel(), per[k - 1, :3], np.arange(3)])
     for _ in range(_STEPS):
+        problem = _Problem(n)
         gravity = rotation @ g0
         # d(gravity)/d(tilt) for a small rotation about the world's x and y axes.
         tilt = np.cross(np.eye(3), gravity).T[:, :2]
-        rows: list[F64] = []
-        rhs: list[F64] = []
-        weights: list[F64] = []
-        for i, (dt, measured, jac, weight) in enumerate(intervals):
+        for i, (dt, measured, jac, root) in enumerate(intervals):
             r_t = poses[i, :3, :3].T
-            a = np.zeros((6, n))
             moved = poses[i + 1, :3, 3] - poses[i, :3, 3]
-            a[:3, 0] = r_t @ moved
-            a[:3, 1:3] = -0.5 * dt * dt * r_t @ tilt
-            a[3:, 1:3] = -dt * r_t @ tilt
-            a[:3, 3 + 3 * i : 6 + 3 * i] = -dt * r_t
-            a[3:, 3 + 3 * i : 6 + 3 * i] = -r_t
-            a[3:, 6 + 3 * i : 9 + 3 * i] = r_t
-            a[:, 3 + 3 * k + 3 * i : 6 + 3 * k + 3 * i] = -jac
+            v, b = 3 + 3 * i, 3 + 3 * k + 3 * i
+            blocks = np.zeros((6, 12))  # scale and tilt, v_i, v_j, b_i
+            blocks[:3, 0] = r_t @ moved
+            blocks[:3, 1:3] = -0.5 * dt * dt * r_t @ tilt
+            blocks[3:, 1:3] = -dt * r_t @ tilt
+            blocks[:3, 3:6] = -dt * r_t
+            blocks[3:, 3:6] = -r_t
+            blocks[3:, 6:9] = r_t
+            blocks[:, 9:12] = -jac
             model = np.concatenate(
                 [
                     r_t @ (scale * moved - velocities[i] * dt - 0.5 * gravity * dt * dt),
                     r_t @ (velocities[i + 1] - velocities[i] - gravity * dt),
                 ]
             )
-            rows.append(a)
-            rhs.append(measured + jac @ biases[i] - model)
-            weights.append(weight)
+            columns = np.r_[0:3, v : v + 6, b : b + 3]
+            problem.add(root @ blocks, columns, root @ (measured + jac @ biases[i] - model))
             if i + 1 < len(intervals):
-                walk = np.zeros((3, n))
-                walk[:, 3 + 3 * k + 3 * i : 6 + 3 * k + 3 * i] = -np.eye(3)
-                walk[:, 6 + 3 * k + 3 * i : 9 + 3 * k + 3 * i] = np.eye(3)
-                rows.append(walk)
-                rhs.append(biases[i] - biases[i + 1])
-                weights.append(np.eye(3) / (noise.accel_random_walk**2 * dt))
-        prior = np.zeros((3, n))
-        prior[:, 3 + 3 * k : 6 + 3 * k] = np.eye(3)
-        rows.append(prior)
-        rhs.append(-(hat + biases[0]))
-        weights.append(np.eye(3) / ACCEL_BIAS_SIGMA**2)
-        info = np.zeros((n, n))
-        grad = np.zeros(n)
-        for a, r, w in zip(rows, rhs, weights, strict=True):
-            aw = a.T @ w
-            info += aw @ a
-            grad += aw @ r
-        step = np.linalg.solve(info, grad)
+                sigma = noise.accel_random_walk * math.sqrt(dt)
+                walk = np.hstack([-np.eye(3), np.eye(3)]) / sigma
+                problem.add(walk, np.r_[b : b + 6], (biases[i] - biases[i + 1]) / sigma)
+        b0 = 3 + 3 * k
+        prior = np.eye(3) / ACCEL_BIAS_SIGMA
+        problem.add(prior, np.r_[b0 : b0 + 3], -prior @ (hat + biases[0]))
+        step, variance = problem.solve(order)
         scale += step[0]
         rotation = _small_rotation(step[1], step[2]) @ rotation
         velocities += step[3 : 3 + 3 * k].reshape(k, 3)
         biases += step[3 + 3 * k :].reshape(k - 1, 3)
-    covariance = np.linalg.inv(info)
     return ScaleInformation(
         scale=float(scale),
-        std=float(math.sqrt(max(covariance[0, 0], 0.0))) / max(abs(scale), 1e-12),
+        std=math.sqrt(max(variance, 0.0)) / max(abs(scale), 1e-12),
         keyframes=int(k),
         duration_s=float(stamps[-1] - stamps[0]) * 1e-9,
     )
+
+
+class _Problem:
+    """A sparse whitened linear least-squares problem ``min |A x - r|²`` built block by block."""
+
+    def __init__(self, n: int) -> None:
+        self.n = n
+        self.rows: list[NDArray[np.int64]] = []
+        self.cols: list[NDArray[np.int64]] = []
+        self.vals: list[F64] = []
+        self.rhs: list[F64] = []
+        self.m = 0
+
+    def add(self, block: F64, columns: NDArray[np.int64], rhs: F64) -> None:
+        """Rows ``block`` (whitened) over ``columns`` of the unknowns, with their ``rhs``."""
+        r, c = block.shape
+        self.rows.append(np.repeat(np.arange(self.m, self.m + r), c))
+        self.cols.append(np.tile(columns, r))
+        self.vals.append(block.ravel())
+        self.rhs.append(rhs)
+        self.m += r
+
+    def solve(self, order: NDArray[np.int64]) -> tuple[F64, float]:
+        """The least-squares step and the variance of its first unknown, factored with the
+        unknowns in ``order`` (a banded order keeps the factor sparse)."""
+        from scipy.sparse import coo_matrix
+        from scipy.sparse.linalg import splu
+
+        a = coo_matrix(
+            (np.concatenate(self.vals), (np.concatenate(self.rows), np.concatenate(self.cols))),
+            shape=(self.m, self.n),
+        ).tocsc()[:, order]
+        lu = splu(
+            (a.T @ a).tocsc(),
+            permc_spec="NATURAL",
+            diag_pivot_thresh=0.0,
+            options={"SymmetricMode": True},
+        )
+        step = np.empty(self.n)
+        step[order] = lu.solve(a.T @ np.concatenate(self.rhs))
+        first = (order == 0).astype(np.float64)
+        return step, float(lu.solve(first)[first > 0][0])
 
 
 def _small_rotation(x: float, y: float) -> F64:
