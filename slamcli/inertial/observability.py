@@ -38,6 +38,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from slamcli.errors import InputError
+from slamcli.geometry import so3_exp
 from slamcli.inertial.preintegration import (
     ImuNoise,
     check_imu_samples,
@@ -166,7 +167,7 @@ def scale_information(
         problem.add(prior, np.r_[b0 : b0 + 3], -prior @ (hat + biases[0]))
         step, variance = problem.solve(order)
         scale += step[0]
-        rotation = _small_rotation(step[1], step[2]) @ rotation
+        rotation = so3_exp(np.array([step[1], step[2], 0.0])) @ rotation
         velocities += step[3 : 3 + 3 * k].reshape(k, 3)
         biases += step[3 + 3 * k :].reshape(k - 1, 3)
     return ScaleInformation(
@@ -217,9 +218,3 @@ class _Problem:
         step[order] = lu.solve(a.T @ np.concatenate(self.rhs))
         first = (order == 0).astype(np.float64)
         return step, float(lu.solve(first)[first > 0][0])
-
-
-def _small_rotation(x: float, y: float) -> F64:
-    from slamcli.geometry import so3_exp
-
-    return so3_exp(np.array([x, y, 0.0]))

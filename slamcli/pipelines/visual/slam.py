@@ -436,7 +436,9 @@ class VisualSlam(PipelineBase):
         camera_from_body = inverse(body)
         return np.stack([inverse(p) @ camera_from_body for p in cam_from_world]).reshape(-1, 4, 4)
 
-    def _inertial_record(self, main: int | None, scale: ScaleInformation | None) -> dict[str, Any]:
+    def _inertial_record(
+        self, main: int | None, scale_info: ScaleInformation | None
+    ) -> dict[str, Any]:
         """The IMU's part of ``run.json``: whether the main map was initialised, the
         initialisations and refinements (when, scale, gravity, biases), and the last
         keyframe's bias estimate, how well the motion determined a monocular run's scale,
@@ -452,12 +454,12 @@ class VisualSlam(PipelineBase):
             "final_gyro_bias": None if last is None else [round(float(x), 7) for x in last[3:6]],
             "final_accel_bias": None if last is None else [round(float(x), 6) for x in last[6:9]],
             "scale_determination": None
-            if scale is None
+            if scale_info is None
             else {
-                "std": round(scale.std, 5),
-                "imu_scale": round(scale.scale, 5),
-                "keyframes": scale.keyframes,
-                "seconds": round(scale.duration_s, 3),
+                "std": round(scale_info.std, 5),
+                "imu_scale": round(scale_info.scale, 5),
+                "keyframes": scale_info.keyframes,
+                "seconds": round(scale_info.duration_s, 3),
             },
             "clock_offset": None if clock is None else dataclasses.asdict(clock),
         }
@@ -519,7 +521,7 @@ class VisualSlam(PipelineBase):
         map ``main``, the counts and the records of maps, merges and loop closures."""
         smap = self.atlas.map
         kfs = smap.live(main)
-        scale = self.inertial.scale_determination(main) if main is not None else None
+        scale_info = self.inertial.scale_determination(main) if main is not None else None
         keyframes = Trajectory(
             np.array([k.stamp_ns for k in kfs], np.int64),
             self._bodies([k.cam_from_world for k in kfs]),
@@ -551,9 +553,9 @@ class VisualSlam(PipelineBase):
                 "maps": [m.to_dict() for m in self.atlas.maps],
                 "merges": self.atlas.merges,
                 "loop_closures": self.loops.records,
-                "doubts": self._doubts(counts, main, scale),
+                "doubts": self._doubts(counts, main, scale_info),
                 **(
-                    {"inertial": self._inertial_record(main, scale)}
+                    {"inertial": self._inertial_record(main, scale_info)}
                     if self.inertial.enabled
                     else {}
                 ),
