@@ -7,14 +7,16 @@ OpenCV for several times more corners than wanted (with a low FAST threshold, so
 still gives some) and keeps them level by level and cell by cell: each pyramid level gets a
 share of the features proportional to its area (as ORB-SLAM does), and within a level the
 image is cut into square cells and the best corner of every cell is taken before the second
-best of any, round after round, until the level's share is full. Descriptors are computed only
-for the kept corners.
+best of any, round after round, until the level's share is full. OpenCV describes every
+detected corner in the same call (each from its own pyramid level, so a kept corner's
+descriptor is what describing it alone gives), and the kept ones are taken.
 
 Everything is deterministic: OpenCV's ORB has no randomness, and ties are broken by position.
 """
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
 from typing import Any
 
@@ -26,6 +28,9 @@ from slamcli.types import PinholeCamera
 
 F32 = NDArray[np.float32]
 F64 = NDArray[np.float64]
+
+_OCTAVE = operator.attrgetter("octave")
+_RESPONSE = operator.attrgetter("response")
 
 
 @dataclass(frozen=True)
@@ -100,23 +105,25 @@ def level_quota(n_features: int, levels: int, scale: float) -> NDArray[np.int64]
 
 def extract_orb(gray: NDArray[np.uint8], settings: OrbSettings = OrbSettings()) -> Features:
     """ORB features of a grayscale (H, W) uint8 image, spread over the image and the pyramid."""
+    import cv2
+
     orb = _orb(settings)
-    detected = orb.detect(gray, None)
-    if not detected:
+    # One call detects and describes every corner (OpenCV lets go of the interpreter lock
+    # for all of it; its ``detect`` alone holds it for a good part); the spread then picks
+    # the kept ones. The descriptors are those ``compute`` gives the kept corners alone.
+    detected, desc = orb.detectAndCompute(gray, None)
+    if not detected or desc is None:
         return Features.empty()
-    xy = np.array([k.pt for k in detected], dtype=np.float64)
-    octave = np.array([k.octave for k in detected], dtype=np.int64)
-    response = np.array([k.response for k in detected], dtype=np.float64)
+    n = len(detected)
+    xy = np.asarray(cv2.KeyPoint.convert(detected), np.float64).reshape(-1, 2)
+    octave = np.fromiter(map(_OCTAVE, detected), np.int64, n)
+    response = np.fromiter(map(_RESPONSE, detected), np.float64, n)
     keep = _spread(xy, octave, response, settings)
-    chosen = [detected[i] for i in keep]
-    kept, desc = orb.compute(gray, chosen)
-    if desc is None or not kept:
-        return Features.empty()
     return Features(
-        np.array([k.pt for k in kept], dtype=np.float32).reshape(-1, 2),
-        np.array([k.octave for k in kept], dtype=np.int16),
-        np.ascontiguousarray(desc, dtype=np.uint8),
-        np.array([k.response for k in kept], dtype=np.float32),
+        xy[keep].astype(np.float32),
+        octave[keep].astype(np.int16),
+        np.ascontiguousarray(desc[keep], dtype=np.uint8),
+        response[keep].astype(np.float32),
     )
 
 
