@@ -281,3 +281,61 @@ def test_input_errors_are_clear(clean: Scene) -> None:
         solve(clean, fixed_frames=np.zeros(3, dtype=bool))
     with pytest.raises(ValueError, match=r"cam_from_world must be \(K, 4, 4\)"):
         solve(replace(clean, poses=clean.poses[:, :3]))
+
+
+@pytest.mark.parametrize("loss", ["cauchy", "huber"])
+@pytest.mark.parametrize("with_depth", [False, True])
+def test_compiled_solver_takes_colmaps_steps(
+    monkeypatch: pytest.MonkeyPatch, loss: str, with_depth: bool
+) -> None:
+    """The compiled solver is COLMAP's Levenberg-Marquardt on the same cost: on a scene with
+    outliers (and with depth, the virtual right camera), stopped after the pipeline's 10
+    iterations or at the tolerance, both take the same steps and end at the same poses,
+    points, cost and inliers, to rounding."""
+    import slamcli.vision.bundle_adjustment as bam
+
+    scene = make_scene(3, outliers=0.05)
+    kwargs: dict[str, object] = {"robust_loss": loss, "max_iterations": 10}
+    if with_depth:
+        pc = np.einsum(
+            "mij,mj->mi",
+            scene.truth_poses[scene.obs_frame, :3, :3],
+            scene.truth_points[scene.obs_point],
+        )
+        depth = pc[:, 2] + scene.truth_poses[scene.obs_frame, 2, 3]
+        depth = depth * (1.0 + np.random.default_rng(4).normal(0.0, 0.005, depth.size))
+        depth[::3] = np.nan
+        kwargs.update(obs_depth=depth, baseline_m=0.08)
+    compiled = solve(scene, **kwargs)
+    monkeypatch.setattr(bam, "COMPILED_MAX_FRAMES", 0)
+    colmap = solve(scene, **kwargs)
+    assert compiled.final_cost < 0.2 * compiled.initial_cost
+    assert compiled.iterations == colmap.iterations
+    assert abs(compiled.final_cost - colmap.final_cost) <= 1e-9 * colmap.final_cost
+    assert np.abs(compiled.cam_from_world - colmap.cam_from_world).max() < 1e-9
+    assert np.abs(compiled.points - colmap.points).max() < 1e-8
+    assert (compiled.inlier == colmap.inlier).all()
+    assert not compiled.inlier.all()  # the outliers are found
+
+
+def test_compiled_solver_lets_a_point_go_behind_a_camera_as_colmap_does(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A point whose observations pull it through a camera's plane: as in COLMAP's cost, an
+    observation from behind has no residual, and the result calls it an outlier."""
+    import slamcli.vision.bundle_adjustment as bam
+
+    scene = make_scene(0, frames=4, points=60, per_point=3, n_fixed=2)
+    # Two of the first point's three observations moved far off the image, to one side:
+    # the fit carries the point behind the cameras.
+    uv = scene.obs_uv.copy()
+    uv[:2] = [-5000.0, 3000.0]
+    bent = replace(scene, obs_uv=uv)
+    compiled = solve(bent)
+    monkeypatch.setattr(bam, "COMPILED_MAX_FRAMES", 0)
+    colmap = solve(bent)
+    behind = np.isinf(compiled.obs_chi2)
+    assert behind[:3].any() and not behind[3:].any()
+    assert not compiled.inlier[behind].any()
+    assert np.array_equal(behind, np.isinf(colmap.obs_chi2))
+    assert np.abs(compiled.points - colmap.points).max() < 1e-8

@@ -203,8 +203,8 @@ def refine_pose_depth(
     ``iterations`` with the outliers of a round (chi-square above 5.99 for two, 7.81 for three
     residuals, in units of ``sigma_px``) left out of the next; a round that leaves the inlier
     set as it was ends the refinement (another would start where this one converged).
-    pycolmap's refinement has no depth term, so this one is written out here; it is small
-    (6 unknowns) and vectorised.
+    pycolmap's refinement has no depth term, so this one is written out here, compiled
+    (:mod:`slamcli.vision._pose_kernels`).
     """
     pixels = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
     points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
@@ -218,38 +218,24 @@ def refine_pose_depth(
     bf = camera.fx * baseline_m
     ur_meas = np.where(stereo, pixels[:, 0] - bf / np.where(stereo, z_meas, 1.0), 0.0)
     th = np.where(stereo, 7.815, 5.991)
-    delta = np.sqrt(th)
-    rot = np.array(cam_from_world, dtype=np.float64)[:3, :3]
-    trans = np.array(cam_from_world, dtype=np.float64)[:3, 3]
-    terms = _StereoTerms(camera, points, pixels, ur_meas, stereo, bf)
-    inlier = np.ones(m, dtype=bool)
-    for _ in range(rounds):
-        for _ in range(iterations):
-            res, front = terms.residuals(rot, trans)
-            chi2 = (res[0] ** 2 + res[1] ** 2 + res[2] ** 2) * info
-            use = inlier & front
-            if np.count_nonzero(use) < 4:
-                return None
-            # Huber weights on the whitened norm.
-            norm = np.sqrt(chi2)
-            w = np.where(norm <= delta, info, info * delta / np.maximum(norm, 1e-12))
-            w[~use] = 0.0
-            h, g = terms.normal_equations(w, res)
-            try:
-                step = np.asarray(-np.linalg.solve(h, g), dtype=np.float64)
-            except np.linalg.LinAlgError:
-                return None
-            rot, trans = _left_update(step, rot, trans)
-            if float(step @ step) < 1e-12:
-                break
-        res, front = terms.residuals(rot, trans)
-        chi2 = (res[0] ** 2 + res[1] ** 2 + res[2] ** 2) * info
-        now = front & (chi2 <= th)
-        same = bool(np.array_equal(now, inlier))
-        inlier = now
-        if same:
-            break
-    if np.count_nonzero(inlier) < 4:
+    from slamcli.vision import _pose_kernels
+
+    rot = np.array(cam_from_world, dtype=np.float64)[:3, :3].copy()
+    trans = np.array(cam_from_world, dtype=np.float64)[:3, 3].copy()
+    held, inlier = _pose_kernels.refine(
+        rot,
+        trans,
+        np.ascontiguousarray(points),
+        np.ascontiguousarray(pixels),
+        ur_meas,
+        stereo,
+        info,
+        th,
+        np.array([camera.fx, camera.fy, camera.cx, camera.cy, bf]),
+        rounds,
+        iterations,
+    )
+    if not held or np.count_nonzero(inlier) < 4:
         return None
     # Products of many small rotations drift off SO(3) in the last bits: project back.
     u, _, vt = np.linalg.svd(rot)
@@ -257,104 +243,6 @@ def refine_pose_depth(
     pose[:3, :3] = u @ vt
     pose[:3, 3] = trans
     return PoseEstimate(pose, inlier)
-
-
-def _left_update(step: F64, rot: F64, trans: F64) -> tuple[F64, F64]:
-    """``exp(step) * (rot, trans)`` for a twist ``[rho, phi]`` (closed-form SE(3) exponential)."""
-    rho, phi = step[:3], step[3:]
-    theta2 = float(phi @ phi)
-    k = np.array([[0.0, -phi[2], phi[1]], [phi[2], 0.0, -phi[0]], [-phi[1], phi[0], 0.0]])
-    k2 = k @ k
-    if theta2 < 1e-12:
-        a, b, c = 1.0 - theta2 / 6.0, 0.5 - theta2 / 24.0, 1.0 / 6.0 - theta2 / 120.0
-    else:
-        theta = math.sqrt(theta2)
-        a = math.sin(theta) / theta
-        b = (1.0 - math.cos(theta)) / theta2
-        c = (theta - math.sin(theta)) / (theta2 * theta)
-    exp_r = np.eye(3) + a * k + b * k2
-    exp_t = rho + b * (k @ rho) + c * (k2 @ rho)
-    return exp_r @ rot, exp_r @ trans + exp_t
-
-
-class _StereoTerms:
-    """Residuals and Gauss-Newton normal equations of :func:`refine_pose_depth`'s
-    observations, with what does not change between iterations computed once."""
-
-    def __init__(
-        self,
-        camera: PinholeCamera,
-        points: F64,
-        pixels: F64,
-        ur_meas: F64,
-        stereo: NDArray[np.bool_],
-        bf: float,
-    ) -> None:
-        self.fx, self.fy, self.cx, self.cy = camera.fx, camera.fy, camera.cx, camera.cy
-        self.points = points
-        self.px, self.py = pixels[:, 0].copy(), pixels[:, 1].copy()
-        self.ur_meas = ur_meas
-        self.stereo = stereo
-        self.sidx = np.flatnonzero(stereo)
-        self.bf = bf
-        m, s = len(points), self.sidx.size
-        # Jacobian rows: u of every point, v of every point, ur of the points with depth;
-        # the entries that are always zero are set here once.
-        self.jac = np.zeros((6, 2 * m + s))
-        self.pc = points
-        self.iz = np.ones(m)
-
-    def residuals(self, rot: F64, trans: F64) -> tuple[F64, NDArray[np.bool_]]:
-        """(3, M) residuals (predicted - measured; the third 0 without depth) and which
-        points are in front of the camera."""
-        pc = self.points @ rot.T + trans
-        self.pc = pc
-        z = pc[:, 2]
-        front = z > 1e-6
-        iz = 1.0 / np.where(front, z, 1.0)
-        self.iz = iz
-        u = self.fx * pc[:, 0] * iz + self.cx
-        res = np.empty((3, len(pc)))
-        res[0] = u - self.px
-        res[1] = self.fy * pc[:, 1] * iz + self.cy - self.py
-        res[2] = np.where(self.stereo, u - self.bf * iz - self.ur_meas, 0.0)
-        return res, front
-
-    def normal_equations(self, w: F64, res: F64) -> tuple[F64, F64]:
-        """``J^T W J`` and ``J^T W r`` at the last :meth:`residuals` call's pose, for a left
-        perturbation ``[rho, phi]`` (``d pc = rho + phi x pc``)."""
-        x, y, z = self.pc[:, 0], self.pc[:, 1], self.pc[:, 2]
-        iz = self.iz
-        m = x.size
-        s = self.sidx
-        a = self.fx * iz
-        b = self.fy * iz
-        # Gradients of u, v and ur with respect to the point in the camera, (gx, gy, gz), and
-        # rows [gx, gy, gz, gz*y - gy*z, gx*z - gz*x, gy*x - gx*y].
-        gz_u = -a * x * iz
-        gz_v = -b * y * iz
-        j = self.jac
-        ju, jv, jr = j[:, :m], j[:, m : 2 * m], j[:, 2 * m :]
-        ju[0] = a
-        ju[2] = gz_u
-        ju[3] = gz_u * y
-        ju[4] = a * z - gz_u * x
-        ju[5] = -a * y
-        jv[1] = b
-        jv[2] = gz_v
-        jv[3] = gz_v * y - b * z
-        jv[4] = -gz_v * x
-        jv[5] = b * x
-        gz_r = gz_u[s] + self.bf * iz[s] * iz[s]
-        jr[0] = a[s]
-        jr[2] = gz_r
-        jr[3] = gz_r * y[s]
-        jr[4] = a[s] * z[s] - gz_r * x[s]
-        jr[5] = -a[s] * y[s]
-        ws = np.concatenate([w, w, w[s]])
-        r = np.concatenate([res[0], res[1], res[2, s]])
-        jw = j * ws
-        return jw @ j.T, jw @ r
 
 
 def pnp_opencv(
