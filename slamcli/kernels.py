@@ -1,10 +1,10 @@
 """The compiled kernels: numba functions, compiled on their first call and cached on disk.
 
-Path search, the car-like planner, descriptor matching, stereo matching and the synthetic
-room's shading are numba functions with ``cache=True``. numba compiles each for the argument
-types of its first call and for this machine's CPU, which takes from a few seconds (the grid
-search) to about half a minute (the car-like planner), and writes the machine code to its
-cache; every later process loads it from there in milliseconds.
+Path search, the car-like planner, descriptor matching, stereo matching, bundle adjustment and
+pose refinement, and the synthetic room's shading are numba functions with ``cache=True``.
+numba compiles each for the argument types of its first call and for this machine's CPU, which
+takes from a few seconds (the grid search) to about half a minute (the car-like planner), and
+writes the machine code to its cache; every later process loads it from there in milliseconds.
 
 Where the cache lives is numba's choice: ``$NUMBA_CACHE_DIR`` when set; else the
 ``__pycache__`` folder beside each kernel module when it is writable (a checkout, an editable
@@ -16,18 +16,22 @@ changes is compiled again.
 inputs, so the argument types are the ones real runs use: ``make setup`` calls it once per
 install, so neither the demo, the tests nor their timings pay for compiling.
 :func:`on_compile` tells a caller (the command line, which says so on stderr) when a group is
-about to be compiled anyway.
+about to be compiled anyway. The visual pipeline's kernels (matching, stereo, pose refinement,
+bundle adjustment) take numba from :func:`load_numba`, which builds numba's target cheaply.
 """
 
 from __future__ import annotations
 
+import gc
 import importlib.abc
 import importlib.machinery
 import importlib.util
 import sys
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from types import ModuleType
 from typing import TYPE_CHECKING, Any
 
@@ -145,6 +149,36 @@ def _warm_stereo() -> None:
     )
 
 
+def _warm_adjustment() -> None:
+    import numpy as np
+
+    from slamcli.synth.rgbd import camera_for_size
+    from slamcli.vision.bundle_adjustment import bundle_adjust
+    from slamcli.vision.pnp import refine_pose_depth
+
+    camera = camera_for_size(160, 120)
+    rng = np.random.default_rng(0)
+    points = rng.uniform(-1.0, 1.0, (12, 3)) + np.array([0.0, 0.0, 4.0])
+    poses = np.stack([np.eye(4), np.eye(4)])
+    poses[1, 0, 3] = -0.2
+    frame = np.repeat([0, 1], 12)
+    point = np.tile(np.arange(12), 2)
+    pc = points[point] + poses[frame, :3, 3]
+    uv = pc[:, :2] / pc[:, 2:] * [camera.fx, camera.fy] + [camera.cx, camera.cy]
+    bundle_adjust(
+        camera,
+        poses,
+        points,
+        frame,
+        point,
+        uv,
+        np.ones(24),
+        fixed_frames=np.array([True, False]),
+        obs_depth=pc[:, 2],
+    )
+    refine_pose_depth(camera, np.eye(4), uv[:12], points, pc[:12, 2])
+
+
 def _warm_render() -> None:
     import numpy as np
 
@@ -180,6 +214,13 @@ GROUPS: tuple[KernelGroup, ...] = (
     KernelGroup(
         "stereo", "stereo matching", ("slamcli.vision._stereo_kernels",), 4.0, _warm_stereo
     ),
+    KernelGroup(
+        "adjustment",
+        "bundle adjustment and pose refinement",
+        ("slamcli.vision._ba_kernels", "slamcli.vision._pose_kernels"),
+        6.0,
+        _warm_adjustment,
+    ),
     KernelGroup("render", "room rendering", ("slamcli.synth._render_kernels",), 2.0, _warm_render),
 )
 """Every kernel module, in groups; a new module with ``cache=True`` kernels joins one."""
@@ -210,6 +251,76 @@ def warm(
         if progress is not None:
             progress(group, took[group.name])
     return took
+
+
+_numba_lock = threading.Lock()
+_numba_ready = False
+
+
+def load_numba() -> ModuleType:
+    """numba, with its CPU target built: what the first call of any kernel builds otherwise.
+
+    The target is numba's typing and lowering registries: some 100 000 objects that live as
+    long as the process. They are made with the cyclic garbage collector paused (it walked
+    them again and again while they grew, 50 ms a full pass) and handed straight to its oldest
+    generation. Building the target also imports ``scipy.linalg.cython_blas``, numba's way to
+    find BLAS, and the ordinary import runs all of ``scipy.linalg`` first (0.15 s: its
+    array-API layer imports numpy.testing and numpy.f2py); that one extension module is loaded
+    from its file instead, the same module numba would get, without the package around it.
+    """
+    global _numba_ready
+    with _numba_lock:
+        if not _numba_ready:
+            paused = gc.isenabled()
+            gc.disable()
+            try:
+                _load_cython_blas()
+                from numba.core.compiler_lock import global_compiler_lock
+                from numba.core.registry import cpu_target
+
+                with global_compiler_lock:
+                    cpu_target.target_context.refresh()
+            finally:
+                if gc.get_freeze_count() == 0:
+                    # Straight into the oldest generation, where the collector would move
+                    # them after walking them twice; a host's own frozen objects stay so.
+                    gc.freeze()
+                    gc.unfreeze()
+                if paused:
+                    gc.enable()
+            _numba_ready = True
+    import numba
+
+    return numba
+
+
+def _load_cython_blas() -> None:
+    """Import ``scipy.linalg.cython_blas`` without running ``scipy.linalg``'s ``__init__`` (a
+    later ``import scipy.linalg`` runs it as usual). The ``scipy`` package itself is imported
+    first: it is light, and it finds the BLAS library the module links to. Where the file is
+    not where scipy's wheels put it, nothing is done and numba imports it its own way."""
+    name = "scipy.linalg.cython_blas"
+    if name in sys.modules or "scipy.linalg" in sys.modules:
+        return
+    try:
+        scipy = importlib.import_module("scipy")
+    except ImportError:
+        return
+    found = (
+        Path(folder) / "linalg" / f"cython_blas{suffix}"
+        for folder in scipy.__path__
+        for suffix in importlib.machinery.EXTENSION_SUFFIXES
+    )
+    path = next((p for p in found if p.is_file()), None)
+    spec = importlib.util.spec_from_file_location(name, path) if path is not None else None
+    if spec is None or spec.loader is None:
+        return
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except Exception:
+        del sys.modules[name]
 
 
 _notify: Callable[[KernelGroup], None] | None = None
@@ -286,4 +397,4 @@ class _AfterImport(importlib.abc.MetaPathFinder):
         return spec
 
 
-__all__ = ["GROUPS", "KernelGroup", "group_of", "on_compile", "warm"]
+__all__ = ["GROUPS", "KernelGroup", "group_of", "load_numba", "on_compile", "warm"]

@@ -167,3 +167,26 @@ def test_a_command_says_once_that_it_compiles(tmp_path: Path) -> None:
         ["slamcli: compiling the path search kernels for this machine, once (about 5 s)"],
         [],
     ]
+
+
+def test_load_numba_finds_blas_without_importing_scipy_linalg() -> None:
+    """numba's CPU target looks for BLAS in ``scipy.linalg.cython_blas``: load_numba gives it
+    that module without running ``scipy.linalg``, which a later import still runs as usual."""
+    code = textwrap.dedent(
+        """
+        import sys
+        from slamcli.kernels import load_numba
+        load_numba()
+        from numba.np.arraymath import _HAVE_BLAS
+        before = "scipy.linalg" in sys.modules
+        import numpy as np
+        import scipy.linalg
+        from scipy.linalg import cython_blas
+        solved = scipy.linalg.solve(np.eye(2), np.ones(2)).tolist()
+        print(_HAVE_BLAS, before, cython_blas is sys.modules["scipy.linalg.cython_blas"], solved)
+        """
+    )
+    run = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=REPO
+    )
+    assert run.stdout.split() == ["True", "False", "True", "[1.0,", "1.0]"]

@@ -32,8 +32,11 @@ This module imports numba: import it only where an adjustment runs.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from slamcli.kernels import load_numba
+
+numba = load_numba()
 
 HUBER, CAUCHY = 0, 1
 # A point nearer a camera's plane than this, or behind it, has no residual there (COLMAP's

@@ -15,8 +15,11 @@ This module imports numba: import it only where a match runs.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from slamcli.kernels import load_numba
+
+numba = load_numba()
 
 _M1 = np.uint64(0x5555555555555555)
 _M2 = np.uint64(0x3333333333333333)

@@ -9,8 +9,11 @@ This module imports numba: import it only where a pose is refined.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
+
+from slamcli.kernels import load_numba
+
+numba = load_numba()
 
 
 @numba.njit(cache=True, nogil=True)

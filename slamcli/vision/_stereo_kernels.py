@@ -20,11 +20,13 @@ This module imports numba: import it only where stereo matching runs.
 
 from __future__ import annotations
 
-import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from slamcli.kernels import load_numba
 from slamcli.vision._matching_kernels import hamming_rows
+
+numba = load_numba()
 
 I64 = NDArray[np.int64]
 F64 = NDArray[np.float64]
