@@ -175,6 +175,10 @@ def _track(
     odometry = options.pop("odometry", None)
     if odometry not in (None, "log", "none"):
         raise ConfigError(f"--odometry {odometry}: expected 'log' or 'none'")
+    # The input's hash (for run.json) is read beside the run when the pipeline works on two
+    # cores: hashing lets go of the interpreter lock, and a short run's start is spent
+    # importing, which holds it.
+    digest = Background(hash_input, input_path) if pipe.read_ahead else None
     try:
         with open_source(input_path, **options) as source:
             with timings.stage("open"):
@@ -187,9 +191,6 @@ def _track(
             items = _first_frames(source.frames(kinds), max_frames)
             with timings.stage("track"):
                 frames = _feed(pipe, items, total, progress)
-            # The input's hash (for run.json) is read beside the pipeline's last steps when
-            # the pipeline works on two cores.
-            digest = Background(hash_input, input_path) if pipe.read_ahead else None
             with timings.stage("finish"), watched() as interrupted:
                 result = pipe.finish()
                 interrupted()

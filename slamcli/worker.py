@@ -8,16 +8,20 @@ the data (say, the next keyframe), never "when it is ready", so the output does 
 timing: the function is pure and deterministic, its result is the same in either process, and
 the same point is used whether it ran there or in place.
 
-The worker is ``python -m slamcli.worker``, fed pickled calls on its stdin, one at a time. It
-is started with :mod:`subprocess`, not :mod:`multiprocessing`: it never re-imports the caller's
-``__main__`` (a script without a ``__main__`` guard stays safe), and it may be started from a
-daemonic process such as a Dask worker's task. With ``parallel=False``, or where no process can
-be started, or when the worker dies, the call runs in place instead: slower, same result.
+The worker is ``python -m slamcli.worker [MODULE ...]``, fed pickled calls on its stdin, one
+at a time. It imports the modules named first, while the caller goes on, so that the first
+call's answer does not wait for them (the visual pipeline's, with numba, take half a second).
+It is started with :mod:`subprocess`, not :mod:`multiprocessing`: it never re-imports the
+caller's ``__main__`` (a script without a ``__main__`` guard stays safe), and it may be started
+from a daemonic process such as a Dask worker's task. With ``parallel=False``, or where no
+process can be started, or when the worker dies, the call runs in place instead: slower, same
+result.
 """
 
 from __future__ import annotations
 
 import contextlib
+import importlib
 import logging
 import pickle
 import signal
@@ -82,11 +86,15 @@ class Pending(Generic[T]):
 class SideProcess:
     """One worker process (started on first use), or none with ``parallel=False``.
 
+    ``preload`` names modules the worker imports as soon as it starts: those of the functions
+    it will run and of the libraries they call.
+
     One call is outstanding at a time: :meth:`submit` first collects the previous call's
     result (so neither end ever blocks writing to a full pipe)."""
 
-    def __init__(self, parallel: bool = True) -> None:
+    def __init__(self, parallel: bool = True, preload: tuple[str, ...] = ()) -> None:
         self._parallel = parallel
+        self._preload = preload
         self._proc: subprocess.Popen[bytes] | None = None
         self._outstanding: Pending[Any] | None = None
 
@@ -95,7 +103,7 @@ class SideProcess:
         if self._parallel and self._proc is None:
             try:
                 self._proc = subprocess.Popen(
-                    [sys.executable, "-m", "slamcli.worker"],
+                    [sys.executable, "-m", "slamcli.worker", *self._preload],
                     stdin=subprocess.PIPE,
                     stdout=subprocess.PIPE,
                 )
@@ -142,20 +150,19 @@ class SideProcess:
         self.close()
 
     def close(self) -> None:
-        """Stop the worker (a call in progress is abandoned)."""
+        """Stop the worker. Nothing it holds is needed any more (a call in progress is abandoned,
+        imports still under way would only be finished), so it is killed rather than asked to
+        end: the caller does not wait for it to finish importing or to tear itself down."""
         proc, self._proc = self._proc, None
         self._outstanding = None
         if proc is None:
             return
+        proc.kill()
         for stream in (proc.stdin, proc.stdout):
             if stream is not None:
                 with contextlib.suppress(OSError):
                     stream.close()
-        try:
-            proc.wait(timeout=5)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait()
+        proc.wait()
 
     def __enter__(self) -> SideProcess:
         return self
@@ -192,14 +199,18 @@ class Background(Generic[T]):
         return cast(T, value)
 
 
-def _serve() -> None:
+def _serve(preload: list[str]) -> None:
     """The worker's loop: a call in, ``(True, result)`` or ``(False, exception)`` out, until
-    the caller closes the pipe."""
+    the caller closes the pipe. The modules ``preload`` names are imported first."""
     # Ctrl-C reaches the whole process group: the caller handles it (and closes the pipe).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
     # Nothing else may write to the answer pipe.
     sys.stdout = sys.stderr
+    for name in preload:
+        # A module that fails here fails again in the call that needs it, which reports it.
+        with contextlib.suppress(Exception):
+            importlib.import_module(name)
     while True:
         try:
             fn, args, kwargs = _receive(stdin)
@@ -216,4 +227,4 @@ def _serve() -> None:
 
 
 if __name__ == "__main__":
-    _serve()
+    _serve(sys.argv[1:])

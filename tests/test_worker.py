@@ -30,6 +30,12 @@ def test_side_process_runs_apart_and_gives_what_running_in_place_gives() -> None
     assert np.array_equal(total, here)  # bit for bit
 
 
+def test_the_worker_imports_the_modules_named_before_the_first_call() -> None:
+    with SideProcess(preload=("slamcli.pipelines.visual.frames",)) as side:
+        loaded = side.submit(eval, "'slamcli.pipelines.visual.frames' in __import__('sys').modules")
+        assert loaded.result() is True
+
+
 def test_side_process_answers_calls_in_order_one_at_a_time() -> None:
     with SideProcess() as side:
         first = side.submit(np.sum, np.ones(10))

@@ -355,16 +355,6 @@ def plan(
     render.written(written)
     if not result.tracking.reached_goal:
         render.warn("the simulated robot did not reach the goal within the time limit")
-    _skip_final_collection()
-
-
-def _skip_final_collection() -> None:
-    """Everything alive now lives until the process exits: keep the collector from walking it
-    all once more at shutdown (about a tenth of a second once numba is loaded). Only for this
-    command: it holds no native resources that must be released by the collector."""
-    import gc
-
-    gc.freeze()
 
 
 def _plan_car(

@@ -165,6 +165,9 @@ def _run(
 def _gates(pipeline: str, texts: list[str], baseline: Path | None) -> list[Any]:
     """The --fail-if gates, checked before the run: their syntax, their metrics, a
     baseline for the gates that need one."""
+    if not texts and baseline is None:
+        # Without gates a run needs none of the batch modules.
+        return []
     from slamcli.batch.gates import GateError, parse_gate
     from slamcli.batch.job import read_run_json
     from slamcli.batch.metrics import known_metric

@@ -42,6 +42,7 @@ from slamcli.errors import ConfigError, PipelineError
 from slamcli.formats.base import Prefetch, SourceInfo
 from slamcli.geometry import inverse
 from slamcli.inertial.observability import ScaleInformation
+from slamcli.kernels import load_numba
 from slamcli.pipelines import Evaluation, PipelineBase
 from slamcli.pipelines.timing import Stats
 from slamcli.pipelines.visual.atlas import Atlas, Keyframe
@@ -56,13 +57,19 @@ from slamcli.pipelines.visual.parts import Shared
 from slamcli.pipelines.visual.places import Places
 from slamcli.pipelines.visual.tracking import Tracking
 from slamcli.types import ImuFrame, SlamResult, Trajectory
-from slamcli.worker import SideProcess
+from slamcli.worker import Background, SideProcess
 
 F64 = NDArray[np.float64]
 
 log = logging.getLogger(__name__)
 
 _STATES = ("tracked", "relocalised", "inertial", "lost", "initialising", "new_map")
+
+#: From this many frames on, the final refinement shares them with the side process. Below,
+#: they are refined here: refining a frame takes a tenth of a millisecond (compiled), the round
+#: trip to the side process as long, and at the end of so short a run the side process may
+#: still be importing.
+_REFINE_APART = 32
 
 
 class VisualSlam(PipelineBase):
@@ -81,8 +88,17 @@ class VisualSlam(PipelineBase):
         self.atlas = Atlas(cfg.scale_factor, cfg.levels)
         self.stats = Stats()
         # Local bundle adjustments and the final refinement of the frames' poses run on this
-        # second process with threads=2, at points fixed by the frame sequence.
-        self._side = SideProcess(parallel=cfg.threads == 2)
+        # second process with threads=2, at points fixed by the frame sequence. It imports their
+        # modules and builds numba's target while the first frames are tracked, so that the
+        # first adjustment, or a short run's end, does not wait for them.
+        self._side = SideProcess(
+            parallel=cfg.threads == 2,
+            preload=(
+                "slamcli.pipelines.visual.frames",
+                "slamcli.vision._pose_kernels",
+                "slamcli.vision._ba_kernels",
+            ),
+        )
         self.places = Places(cfg.vocabulary, self.atlas.map)
         shared = Shared(cfg, self.rig, self.atlas, self.places, self.stats)
         self.ba = BundleAdjuster(cfg, self.rig, self.atlas.map, self.stats, self._side)
@@ -101,6 +117,10 @@ class VisualSlam(PipelineBase):
         self.loops = LoopClosing(shared, self.mapper, self.ba)
         self.loops.inertial = self.inertial
         self._features = Prefetch(self.rig.extract, ahead=cfg.threads == 2, name="orb")
+        # numba's target, which every frame's matching needs, is built on another thread while
+        # the source is opened and the first images decoded (which let go of the interpreter
+        # lock): a short run's first frame then waits less for it.
+        self._numba = Background(load_numba) if cfg.threads == 2 else None
         self._frames = 0
         self._textureless = 0
 
@@ -382,9 +402,9 @@ class VisualSlam(PipelineBase):
 
     def _trajectory(self, main: int | None) -> Trajectory:
         """Every frame of the main map, placed by its keyframe and, with
-        ``final_pose_refinement``, re-estimated against the final map: with threads=2 the
-        second half of the frames on the side process (each frame on its own, so the split
-        changes nothing)."""
+        ``final_pose_refinement``, re-estimated against the final map: with threads=2 and
+        :data:`_REFINE_APART` frames or more, the second half of them on the side process (each
+        frame on its own, so the split changes nothing)."""
         smap = self.atlas.map
         stamps: list[int] = []
         poses: list[F64] = []
@@ -419,9 +439,12 @@ class VisualSlam(PipelineBase):
             poses.append(pose)
         if jobs:
             settings = self.rig.refine_jobs()
-            half = len(jobs) // 2
-            later = self._side.submit(refine_poses, *settings, jobs[half:])
-            better = refine_poses(*settings, jobs[:half]) + later.result()
+            if len(jobs) < _REFINE_APART:
+                better = refine_poses(*settings, jobs)
+            else:
+                half = len(jobs) // 2
+                later = self._side.submit(refine_poses, *settings, jobs[half:])
+                better = refine_poses(*settings, jobs[:half]) + later.result()
             for i, new in zip(refined, better, strict=True):
                 if new is not None:
                     poses[i] = new
