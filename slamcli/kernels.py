@@ -253,6 +253,12 @@ def warm(
     return took
 
 
+def load_adjustment() -> None:
+    """Load the bundle adjustment and pose refinement kernels now (compile them if they are not
+    cached): a visual run's side process does it as it starts, before its first adjustment."""
+    warm(["adjustment"])
+
+
 _numba_lock = threading.Lock()
 _numba_ready = False
 
@@ -397,4 +403,12 @@ class _AfterImport(importlib.abc.MetaPathFinder):
         return spec
 
 
-__all__ = ["GROUPS", "KernelGroup", "group_of", "load_numba", "on_compile", "warm"]
+__all__ = [
+    "GROUPS",
+    "KernelGroup",
+    "group_of",
+    "load_adjustment",
+    "load_numba",
+    "on_compile",
+    "warm",
+]

@@ -24,6 +24,7 @@ import contextlib
 import importlib
 import logging
 import pickle
+import select
 import signal
 import struct
 import subprocess
@@ -37,6 +38,7 @@ log = logging.getLogger(__name__)
 T = TypeVar("T")
 
 _HEADER = struct.Struct("<Q")
+_READY = b"\x01"  # the worker's first byte: its modules are imported
 _IN_PLACE = object()  # a call the worker did not answer: run it here
 
 
@@ -87,15 +89,27 @@ class SideProcess:
     """One worker process (started on first use), or none with ``parallel=False``.
 
     ``preload`` names modules the worker imports as soon as it starts: those of the functions
-    it will run and of the libraries they call.
+    it will run and of the libraries they call. ``module:function`` also calls that function
+    (without arguments) once the module is imported: to load compiled kernels, say.
+
+    With ``in_place_while_starting``, a call submitted before the worker has imported its
+    modules runs in place instead (when its result is asked for): the caller does not wait for
+    the worker's start-up, and the result is the same.
 
     One call is outstanding at a time: :meth:`submit` first collects the previous call's
     result (so neither end ever blocks writing to a full pipe)."""
 
-    def __init__(self, parallel: bool = True, preload: tuple[str, ...] = ()) -> None:
+    def __init__(
+        self,
+        parallel: bool = True,
+        preload: tuple[str, ...] = (),
+        in_place_while_starting: bool = False,
+    ) -> None:
         self._parallel = parallel
         self._preload = preload
+        self._in_place_while_starting = in_place_while_starting
         self._proc: subprocess.Popen[bytes] | None = None
+        self._ready = False
         self._outstanding: Pending[Any] | None = None
 
     def start(self) -> None:
@@ -119,6 +133,13 @@ class SideProcess:
         self.start()
         if self._proc is None:
             return Pending(fn, args, kwargs, None)
+        if self._in_place_while_starting:
+            try:
+                if not self._started(wait=False):
+                    return Pending(fn, args, kwargs, None)
+            except (OSError, EOFError) as exc:
+                self._fail(exc)
+                return Pending(fn, args, kwargs, None)
         pending: Pending[T] = Pending(fn, args, kwargs, self)
         try:
             assert self._proc.stdin is not None
@@ -136,6 +157,7 @@ class SideProcess:
         self._outstanding = None
         try:
             assert self._proc.stdout is not None
+            self._started(wait=True)
             ok, value = _receive(self._proc.stdout)
         except (OSError, EOFError, pickle.UnpicklingError) as exc:
             self._fail(exc)
@@ -143,6 +165,29 @@ class SideProcess:
         if not ok:
             raise value
         return value
+
+    def _started(self, wait: bool) -> bool:
+        """Whether the worker has imported its modules (it then writes one byte); with
+        ``wait``, wait for it.
+
+        Raises:
+            EOFError: the worker ended first.
+        """
+        if self._ready:
+            return True
+        assert self._proc is not None and self._proc.stdout is not None
+        if not wait:
+            try:
+                readable, _, _ = select.select([self._proc.stdout], [], [], 0)
+            except (OSError, ValueError):
+                readable = [True]  # a pipe select cannot watch: wait for it in _collect
+            if not readable:
+                return False
+        # Nothing else is on the pipe before the worker's first answer.
+        if self._proc.stdout.read(1) != _READY:
+            raise EOFError("the worker ended as it started")
+        self._ready = True
+        return True
 
     def _fail(self, exc: BaseException) -> None:
         log.warning("the worker process stopped (%s); running in place", exc)
@@ -155,6 +200,7 @@ class SideProcess:
         end: the caller does not wait for it to finish importing or to tear itself down."""
         proc, self._proc = self._proc, None
         self._outstanding = None
+        self._ready = False
         if proc is None:
             return
         proc.kill()
@@ -201,16 +247,25 @@ class Background(Generic[T]):
 
 def _serve(preload: list[str]) -> None:
     """The worker's loop: a call in, ``(True, result)`` or ``(False, exception)`` out, until
-    the caller closes the pipe. The modules ``preload`` names are imported first."""
+    the caller closes the pipe. The modules ``preload`` names are imported first (and a
+    ``module:function`` entry's function called)."""
     # Ctrl-C reaches the whole process group: the caller handles it (and closes the pipe).
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     stdin, stdout = sys.stdin.buffer, sys.stdout.buffer
     # Nothing else may write to the answer pipe.
     sys.stdout = sys.stderr
     for name in preload:
+        module, _, function = name.partition(":")
         # A module that fails here fails again in the call that needs it, which reports it.
         with contextlib.suppress(Exception):
-            importlib.import_module(name)
+            loaded = importlib.import_module(module)
+            if function:
+                getattr(loaded, function)()
+    try:
+        stdout.write(_READY)
+        stdout.flush()
+    except (BrokenPipeError, OSError):
+        return
     while True:
         try:
             fn, args, kwargs = _receive(stdin)

@@ -125,3 +125,19 @@ def test_read_ahead_stops_reading_when_the_consumer_stops() -> None:
     # At most depth items queued beyond the one in hand, and the one being put.
     assert len(read) <= 5 + 1 + 2 + 1
     assert not any(t.name == "read-ahead" for t in threading.enumerate())
+
+
+def test_a_call_before_the_worker_has_started_runs_in_place() -> None:
+    """With in_place_while_starting, calls run here until the worker has imported its modules
+    (its Python start alone takes longer than the first call below), then apart."""
+    with SideProcess(
+        preload=("slamcli.kernels:load_adjustment",), in_place_while_starting=True
+    ) as side:
+        side.start()
+        assert side.submit(os.getpid).result() == os.getpid()
+        deadline = time.monotonic() + 120
+        pid = os.getpid()
+        while pid == os.getpid() and time.monotonic() < deadline:
+            time.sleep(0.05)
+            pid = side.submit(os.getpid).result()
+        assert pid != os.getpid()

@@ -89,15 +89,12 @@ class VisualSlam(PipelineBase):
         self.stats = Stats()
         # Local bundle adjustments and the final refinement of the frames' poses run on this
         # second process with threads=2, at points fixed by the frame sequence. It imports their
-        # modules and builds numba's target while the first frames are tracked, so that the
-        # first adjustment, or a short run's end, does not wait for them.
+        # modules and loads their kernels while the first frames are tracked; an adjustment
+        # due before it is ready runs here (the same result), so nothing waits for it.
         self._side = SideProcess(
             parallel=cfg.threads == 2,
-            preload=(
-                "slamcli.pipelines.visual.frames",
-                "slamcli.vision._pose_kernels",
-                "slamcli.vision._ba_kernels",
-            ),
+            preload=("slamcli.pipelines.visual.frames", "slamcli.kernels:load_adjustment"),
+            in_place_while_starting=True,
         )
         self.places = Places(cfg.vocabulary, self.atlas.map)
         shared = Shared(cfg, self.rig, self.atlas, self.places, self.stats)
