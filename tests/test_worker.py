@@ -141,3 +141,25 @@ def test_a_call_before_the_worker_has_started_runs_in_place() -> None:
             time.sleep(0.05)
             pid = side.submit(os.getpid).result()
         assert pid != os.getpid()
+
+
+@pytest.mark.parametrize("depth", [1, 2, 3])
+def test_prefetch_hands_items_back_in_order_depth_behind(depth: int) -> None:
+    """Prefetch works up to ``depth`` items ahead: an item comes back once ``depth`` more have
+    been pushed (or at the drain), in order, with what preparing it in place gives."""
+    from slamcli.formats.base import Prefetch
+
+    ahead = Prefetch(np.cumsum, ahead=True, depth=depth)
+    here = Prefetch(np.cumsum, ahead=False)
+    got, want = [], []
+    for i in range(7):
+        item = np.arange(i + 1, dtype=np.float64)
+        back = ahead.push(item)
+        assert len(back) == (1 if i >= depth else 0)
+        got += [r.result() for _, r in back]
+        want += [r.result() for _, r in here.push(item)]
+    got += [r.result() for _, r in ahead.drain()]
+    ahead.close()
+    assert len(got) == 7
+    for a, b in zip(got, want, strict=True):
+        assert np.array_equal(a, b)

@@ -276,20 +276,25 @@ class _Done(Generic[_R]):
 
 
 class Prefetch(Generic[_T, _R]):
-    """``prepare`` applied to each item one item ahead of its use, on a worker thread.
+    """``prepare`` applied to each item up to ``depth`` items ahead of its use, on a worker
+    thread.
 
     A pipeline whose per-frame preparation (decoding, ORB features) is a pure function of the
-    frame gets it done on a second core while the previous frame is worked on: :meth:`push`
+    frame gets it done on a second core while the previous frames are worked on (more than
+    one ahead, a slow frame's time is not lost to the preparation waiting): :meth:`push`
     takes a frame and returns the frames whose turn has come, in order, each with its pending
     result (``.result()`` waits for it); :meth:`drain` returns the rest at the end. With
     ``ahead=False`` each item is prepared in place and returned at once. Results do not depend
     on the choice.
     """
 
-    def __init__(self, prepare: Callable[[_T], _R], ahead: bool, name: str = "prefetch") -> None:
+    def __init__(
+        self, prepare: Callable[[_T], _R], ahead: bool, name: str = "prefetch", depth: int = 1
+    ) -> None:
         self._prepare = prepare
         self._ahead = ahead
         self._name = name
+        self._depth = max(1, depth)
         self._pool: ThreadPoolExecutor | None = None
         self._queue: list[tuple[_T, Future[_R]]] = []
 
@@ -300,7 +305,7 @@ class Prefetch(Generic[_T, _R]):
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix=self._name)
         self._queue.append((item, self._pool.submit(self._prepare, item)))
-        if len(self._queue) > 1:
+        if len(self._queue) > self._depth:
             return [self._queue.pop(0)]
         return []
 

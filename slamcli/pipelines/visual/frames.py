@@ -29,6 +29,7 @@ from slamcli.types import ImageFrame, PinholeCamera, RgbdFrame, StereoFrame, Ste
 from slamcli.vision.features import Features, OrbSettings, depth_at, extract_orb
 from slamcli.vision.pnp import PoseEstimate, refine_pose, refine_pose_depth
 from slamcli.vision.stereo import StereoMatches, StereoSettings, match_stereo
+from slamcli.worker import Background
 
 F64 = NDArray[np.float64]
 I64 = NDArray[np.int64]
@@ -236,8 +237,15 @@ class Rig:
         if isinstance(frame, StereoFrame):
             _check_sizes(frame)
             orb = self.orb
-            left = extract_orb(_grey(frame.left), orb)
-            right = extract_orb(_grey(frame.right), orb)
+            if self.config.threads == 2:
+                # The right image's features on a thread of their own: OpenCV's ORB lets go of
+                # the interpreter lock, so the two images take the time of one.
+                later = Background(extract_orb, _grey(frame.right), orb)
+                left = extract_orb(_grey(frame.left), orb)
+                right = later.result()
+            else:
+                left = extract_orb(_grey(frame.left), orb)
+                right = extract_orb(_grey(frame.right), orb)
             matches = match_stereo(
                 left, right, frame.left, frame.right, frame.rig, self.stereo_settings()
             )

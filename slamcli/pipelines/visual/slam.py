@@ -113,7 +113,9 @@ class VisualSlam(PipelineBase):
         """Why an input's IMU was not used, when it was not (``metrics.imu_unused``)."""
         self.loops = LoopClosing(shared, self.mapper, self.ba)
         self.loops.inertial = self.inertial
-        self._features = Prefetch(self.rig.extract, ahead=cfg.threads == 2, name="orb")
+        # Two frames ahead: a keyframe's mapping takes several frames' tracking time, and the
+        # features go on being extracted meanwhile.
+        self._features = Prefetch(self.rig.extract, ahead=cfg.threads == 2, name="orb", depth=2)
         # numba's target, which every frame's matching needs, is built on another thread while
         # the source is opened and the first images decoded (which let go of the interpreter
         # lock): a short run's first frame then waits less for it.
