@@ -88,9 +88,10 @@ class VisualSlam(PipelineBase):
         self.atlas = Atlas(cfg.scale_factor, cfg.levels)
         self.stats = Stats()
         # Local bundle adjustments and the final refinement of the frames' poses run on this
-        # second process with threads=2, at points fixed by the frame sequence. It imports their
-        # modules and loads their kernels while the first frames are tracked; an adjustment
-        # due before it is ready runs here (the same result), so nothing waits for it.
+        # second process with threads=2, at points fixed by the frame sequence. It is started by
+        # the first adjustment (a short run never pays for it) and imports its modules and
+        # loads its kernels while the following frames are tracked; an adjustment due before
+        # it is ready runs here (the same result), so nothing waits for it.
         self._side = SideProcess(
             parallel=cfg.threads == 2,
             preload=("slamcli.pipelines.visual.frames", "slamcli.kernels:load_adjustment"),
@@ -190,8 +191,6 @@ class VisualSlam(PipelineBase):
     def process(self, frame: AnyFrame | ImuFrame) -> None:
         """Queue a frame; with two threads its features are extracted while the previous
         frame is tracked. An IMU sample is kept, and releases the images it covers."""
-        if self.config.threads == 2:
-            self._side.start()
         if isinstance(frame, ImuFrame):
             self.inertial.add(frame)
             last = self.inertial.last_stamp_ns
@@ -248,8 +247,6 @@ class VisualSlam(PipelineBase):
         """Track ``frame`` now, without the queue of :meth:`process`: its world_from_camera
         pose as tracked (in the frame of its map) and that map's id, or None while the map is
         initialising or the frame is lost. :meth:`finish` still gives the final trajectory."""
-        if self.config.threads == 2:
-            self._side.start()
         before = len(self.atlas.frames)
         self._track_frame(frame, features)
         if len(self.atlas.frames) == before:
