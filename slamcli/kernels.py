@@ -152,11 +152,11 @@ def _warm_stereo() -> None:
 def _warm_adjustment() -> None:
     import numpy as np
 
-    from slamcli.synth.rgbd import camera_for_size
+    from slamcli.types import PinholeCamera
     from slamcli.vision.bundle_adjustment import bundle_adjust
     from slamcli.vision.pnp import refine_pose_depth
 
-    camera = camera_for_size(160, 120)
+    camera = PinholeCamera(160, 120, 128.0, 128.0, 79.5, 59.5)
     rng = np.random.default_rng(0)
     points = rng.uniform(-1.0, 1.0, (12, 3)) + np.array([0.0, 0.0, 4.0])
     poses = np.stack([np.eye(4), np.eye(4)])

@@ -65,12 +65,6 @@ log = logging.getLogger(__name__)
 
 _STATES = ("tracked", "relocalised", "inertial", "lost", "initialising", "new_map")
 
-#: From this many frames on, the final refinement shares them with the side process. Below,
-#: they are refined here: refining a frame takes a tenth of a millisecond (compiled), the round
-#: trip to the side process as long, and at the end of so short a run the side process may
-#: still be importing.
-_REFINE_APART = 32
-
 
 class VisualSlam(PipelineBase):
     """Pipeline ``visual``: consumes ``rgbd``, ``stereo`` or ``image`` (monocular) frames;
@@ -87,14 +81,14 @@ class VisualSlam(PipelineBase):
         self.rig = Rig(cfg)
         self.atlas = Atlas(cfg.scale_factor, cfg.levels)
         self.stats = Stats()
-        # Local bundle adjustments and the final refinement of the frames' poses run on this
-        # second process with threads=2, at points fixed by the frame sequence. It is started by
+        # Local bundle adjustments run on this second process with threads=2, taken at points
+        # fixed by the frame sequence. It is started by
         # the first adjustment (a short run never pays for it) and imports its modules and
         # loads its kernels while the following frames are tracked; an adjustment due before
         # it is ready runs here (the same result), so nothing waits for it.
         self._side = SideProcess(
             parallel=cfg.threads == 2,
-            preload=("slamcli.pipelines.visual.frames", "slamcli.kernels:load_adjustment"),
+            preload=("slamcli.kernels:load_adjustment",),
             in_place_while_starting=True,
         )
         self.places = Places(cfg.vocabulary, self.atlas.map)
@@ -398,9 +392,8 @@ class VisualSlam(PipelineBase):
 
     def _trajectory(self, main: int | None) -> Trajectory:
         """Every frame of the main map, placed by its keyframe and, with
-        ``final_pose_refinement``, re-estimated against the final map: with threads=2 and
-        :data:`_REFINE_APART` frames or more, the second half of them on the side process (each
-        frame on its own, so the split changes nothing)."""
+        ``final_pose_refinement``, re-estimated against the final map (compiled, a tenth of a
+        millisecond a frame: here, as handing them to the side process would cost more)."""
         smap = self.atlas.map
         stamps: list[int] = []
         poses: list[F64] = []
@@ -434,13 +427,7 @@ class VisualSlam(PipelineBase):
             stamps.append(rec.stamp_ns)
             poses.append(pose)
         if jobs:
-            settings = self.rig.refine_jobs()
-            if len(jobs) < _REFINE_APART:
-                better = refine_poses(*settings, jobs)
-            else:
-                half = len(jobs) // 2
-                later = self._side.submit(refine_poses, *settings, jobs[half:])
-                better = refine_poses(*settings, jobs[:half]) + later.result()
+            better = refine_poses(*self.rig.refine_jobs(), jobs)
             for i, new in zip(refined, better, strict=True):
                 if new is not None:
                     poses[i] = new
