@@ -30,6 +30,7 @@ import struct
 import subprocess
 import sys
 import threading
+import time
 from collections.abc import Callable
 from typing import IO, Any, Generic, TypeVar, cast
 
@@ -70,9 +71,11 @@ class Pending(Generic[T]):
         args: tuple[Any, ...],
         kwargs: dict[str, Any],
         owner: SideProcess | None,
+        clock: SideProcess | None = None,
     ) -> None:
         self._fn, self._args, self._kwargs = fn, args, kwargs
         self._owner = owner
+        self._clock = clock
         self._done = False
         self._value: Any = None
 
@@ -80,7 +83,10 @@ class Pending(Generic[T]):
         if not self._done:
             value: Any = self._owner._collect(self) if self._owner is not None else _IN_PLACE
             if value is _IN_PLACE:
+                start = time.perf_counter()
                 value = self._fn(*self._args, **self._kwargs)
+                if self._clock is not None:
+                    self._clock.in_place_s += time.perf_counter() - start
             self._value, self._done = value, True
         return cast(T, self._value)
 
@@ -94,7 +100,10 @@ class SideProcess:
 
     With ``in_place_while_starting``, a call submitted before the worker has imported its
     modules runs in place instead (when its result is asked for): the caller does not wait for
-    the worker's start-up, and the result is the same.
+    the worker's start-up, and the result is the same. With ``start_after_s``, calls run in
+    place until they have taken that long there (``in_place_s``), and only then is the worker
+    started: a short job does not pay for starting it. Where a call runs never changes what
+    it returns, so neither option changes a result.
 
     One call is outstanding at a time: :meth:`submit` first collects the previous call's
     result (so neither end ever blocks writing to a full pipe)."""
@@ -104,10 +113,14 @@ class SideProcess:
         parallel: bool = True,
         preload: tuple[str, ...] = (),
         in_place_while_starting: bool = False,
+        start_after_s: float = 0.0,
     ) -> None:
         self._parallel = parallel
         self._preload = preload
         self._in_place_while_starting = in_place_while_starting
+        self._start_after_s = start_after_s
+        self.in_place_s = 0.0
+        """Seconds the calls run in place have taken."""
         self._proc: subprocess.Popen[bytes] | None = None
         self._ready = False
         self._outstanding: Pending[Any] | None = None
@@ -130,13 +143,15 @@ class SideProcess:
         picklable)."""
         if self._outstanding is not None:
             self._outstanding.result()
+        if self._proc is None and self.in_place_s < self._start_after_s:
+            return Pending(fn, args, kwargs, None, clock=self)
         self.start()
         if self._proc is None:
             return Pending(fn, args, kwargs, None)
         if self._in_place_while_starting:
             try:
                 if not self._started(wait=False):
-                    return Pending(fn, args, kwargs, None)
+                    return Pending(fn, args, kwargs, None, clock=self)
             except (OSError, EOFError) as exc:
                 self._fail(exc)
                 return Pending(fn, args, kwargs, None)

@@ -163,3 +163,13 @@ def test_prefetch_hands_items_back_in_order_depth_behind(depth: int) -> None:
     assert len(got) == 7
     for a, b in zip(got, want, strict=True):
         assert np.array_equal(a, b)
+
+
+def test_calls_run_in_place_until_they_have_taken_start_after_s() -> None:
+    """With start_after_s, the worker is started only once the calls run in place have taken
+    that long: before, a call runs here; after, apart."""
+    with SideProcess(start_after_s=0.05) as side:
+        assert side.submit(os.getpid).result() == os.getpid()
+        side.submit(time.sleep, 0.06).result()  # here: 0.06 s of the 0.05
+        assert side.in_place_s >= 0.06
+        assert side.submit(os.getpid).result() != os.getpid()
