@@ -435,7 +435,18 @@ def test_ctrl_c_stops_a_two_core_run_cleanly(tmp_path: Path) -> None:
         "runpy.run_module('slamcli', run_name='__main__', alter_sys=True)"
     )
     proc = subprocess.Popen(
-        [sys.executable, "-c", launch, "run", "visual", str(folder), "--out", str(out)],
+        [
+            sys.executable,
+            "-c",
+            launch,
+            "run",
+            "visual",
+            str(folder),
+            "--out",
+            str(out),
+            "--set",
+            "side_process_after_s=0",
+        ],
         cwd=ROOT,
         stdout=subprocess.PIPE,
         stderr=subprocess.STDOUT,

@@ -177,6 +177,15 @@ class VisualConfig:
         "frames, and runs local bundle adjustment, beside tracking (same results either way)",
         choices=(1, 2),
     )
+    side_process_after_s: float = setting(
+        0.5,
+        help="threads=2: local bundle adjustment runs beside tracking, on a second process, "
+        "once the adjustments run in place have taken this long (about what starting that "
+        "process costs, so a short run never pays for it); 0 starts it at the first "
+        "adjustment (same results either way)",
+        unit="s",
+        min=0.0,
+    )
     seed: int = setting(0, help="seeds every RANSAC", min=0, max=2**31 - 1)
 
     def __post_init__(self) -> None:

@@ -296,6 +296,9 @@ class LocalMapping(Part):
         """A covisible keyframe whose points are 90% seen by three others at the same or a
         finer scale is redundant: it is culled (its pose then follows its parent)."""
         first = self.map.live(kf.map_id)[0].id
+        # One point -> row table for all candidates, cleared after each (the map holds far
+        # more points than a keyframe sees).
+        row_of = np.full(self.map.n, -1, dtype=np.int64)
         for k, _w in self.map.covisible(kf):
             cand = self.map.keyframes[k]
             if cand.id == first or cand.id == kf.id or cand.culled or cand.loop_edges:
@@ -310,7 +313,6 @@ class LocalMapping(Part):
             # How many other keyframes see each of these points at the same or a finer
             # scale: its observers are the keyframes covisible with it.
             level = cand.octaves[rows].astype(np.int64)
-            row_of = np.full(self.map.n, -1, dtype=np.int64)
             row_of[cand.point_ids[rows]] = np.arange(rows.size)
             seen = np.zeros(rows.size, dtype=np.int64)
             for k2, _ in self.map.covisible(cand):
@@ -320,6 +322,7 @@ class LocalMapping(Part):
                 kps, r = kps[r >= 0], r[r >= 0]
                 finer = other.octaves[kps] <= level[r] + 1
                 seen += np.bincount(r[finer], minlength=rows.size)
+            row_of[cand.point_ids[rows]] = -1
             if np.count_nonzero(seen >= 3) > 0.9 * rows.size:
                 self._cull(cand)
 

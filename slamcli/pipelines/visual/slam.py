@@ -65,11 +65,6 @@ log = logging.getLogger(__name__)
 
 _STATES = ("tracked", "relocalised", "inertial", "lost", "initialising", "new_map")
 
-SIDE_PROCESS_AFTER_S = 0.5
-"""Seconds of local bundle adjustment run in place before the side process is started: about
-the processor time its start (Python, numba, the compiled kernels) takes, on a 2-core AMD
-EPYC."""
-
 
 class VisualSlam(PipelineBase):
     """Pipeline ``visual``: consumes ``rgbd``, ``stereo`` or ``image`` (monocular) frames;
@@ -88,7 +83,8 @@ class VisualSlam(PipelineBase):
         self.stats = Stats()
         # Local bundle adjustments run on this second process with threads=2, taken at points
         # fixed by the frame sequence. It is started once the adjustments run here have taken
-        # as long as starting it costs (a short run never pays for it); it then imports its
+        # ``side_process_after_s``, about what starting it costs (half a second of processor
+        # time on a 2-core AMD EPYC: a short run never pays for it); it then imports its
         # modules and loads its kernels while the following frames are tracked, and an
         # adjustment due before it is ready runs here. Where an adjustment runs never changes
         # its result.
@@ -96,7 +92,7 @@ class VisualSlam(PipelineBase):
             parallel=cfg.threads == 2,
             preload=("slamcli.kernels:load_adjustment",),
             in_place_while_starting=True,
-            start_after_s=SIDE_PROCESS_AFTER_S,
+            start_after_s=cfg.side_process_after_s,
         )
         self.places = Places(cfg.vocabulary, self.atlas.map)
         shared = Shared(cfg, self.rig, self.atlas, self.places, self.stats)
