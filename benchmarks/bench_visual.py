@@ -1,5 +1,5 @@
 """ms/frame and accuracy of `slamcli run visual` beside a bare read-and-ORB loop, for RGB-D
-(a TUM folder) and stereo (a KITTI folder).
+(a TUM folder) and stereo (a KITTI folder), and the whole command on a long sequence.
 
 The reference is the least any ORB-based tracker must do per frame: read the frame's PNGs with
 OpenCV (colour and depth; left and right) and run ``cv2.ORB.create(n).detectAndCompute`` on the
@@ -8,18 +8,30 @@ frames, in the same process, after a short warm-up run of each (imports and the 
 not per-frame costs). Ours is the whole ``run_pipeline`` call (reading,
 ORB spread over the pyramid, tracking, local mapping and bundle adjustment, loop closure, the
 final global adjustment and pose re-estimation, writing the run folder), once with the default
-``threads = 2`` and once with ``threads = 1``, to show what the second core gives. The goal is at
-most 3x the bare loop; for stereo also no slower than ORB-SLAM3's stereo tracking on the same
-KITTI frames (2,000 features), measured at 68-77 ms per frame with reading.
+``threads = 2`` and once with ``threads = 1``, to show what the second core gives. The goals:
+at most 2x the bare loop with two threads, at most 3x with one; for stereo also no slower than
+ORB-SLAM3's stereo tracking on the same KITTI frames (2,000 features), measured at 68-77 ms per
+frame with reading.
+
+The last table is what a user waits for: ``slamcli run visual`` as a command (a new process:
+start-up, imports, reading, the run, the report) on a ``slamcli synth rgbd`` sequence of
+``--long`` frames (600 by default, rendered into a temporary folder first), against the bare
+loop over the same frames (in this process, warm). The goal: at most 2.5x.
+
+Every figure depends on the machine: the first line names it.
 
 Usage: python benchmarks/bench_visual.py [--input TUM_FOLDER] [--stereo KITTI_FOLDER]
-[--frames N] [--repeat R]
+[--frames N] [--repeat R] [--long N]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import platform
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -27,8 +39,25 @@ from typing import Any
 
 DEFAULT = Path(__file__).resolve().parents[2] / "shared/data/tum/rgbd_dataset_freiburg1_rpy_excerpt"
 STEREO = Path(__file__).resolve().parents[2] / "shared/data/stereo/kitti_excerpt_1"
-GOAL = 3.0
+GOAL = 2.0
+GOAL_ONE_THREAD = 3.0
+GOAL_COMMAND = 2.5
 ORB_SLAM3_MS = (68.0, 77.0)
+
+
+def machine() -> str:
+    """The CPU model, the cores this process may use, and the load at the start."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return f"{model}, {cores} cores, load average {load:.2f} at start (figures are noisy above 1)"
 
 
 def _listed(folder: Path, name: str) -> list[tuple[float, Path]]:
@@ -132,8 +161,69 @@ def table(
         print(f"  {stage:<22}{cells}")
     ratio = runs[2][0] / ref_s
     verdict = "meets" if ratio <= GOAL else "MISSES"
-    print(f"ours (threads=2) / bare loop: {ratio:.2f}x ({verdict} the goal <= {GOAL:.1f}x); ")
+    print(f"ours (threads=2) / bare loop: {ratio:.2f}x ({verdict} the goal <= {GOAL:.1f}x)")
+    ratio = runs[1][0] / ref_s
+    verdict = "meets" if ratio <= GOAL_ONE_THREAD else "MISSES"
+    print(
+        f"ours (threads=1) / bare loop: {ratio:.2f}x ({verdict} the goal <= {GOAL_ONE_THREAD:.1f}x)"
+    )
     print(f"threads=1 / threads=2: {runs[1][0] / runs[2][0]:.2f}x")
+
+
+def command(n: int) -> None:
+    """``slamcli run visual`` on a rendered sequence of ``n`` frames, as a command, against
+    the bare loop over the same frames."""
+    from slamcli.pipelines.visual import VisualConfig
+
+    features = VisualConfig().max_features
+    with tempfile.TemporaryDirectory(prefix="bench_visual_long_") as tmp:
+        seq = Path(tmp) / "seq"
+        subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "slamcli",
+                "synth",
+                "rgbd",
+                str(seq),
+                "--frames",
+                str(n),
+                "--noise",
+            ],
+            check=True,
+            capture_output=True,
+        )
+        files = frame_files(seq, n)
+        bare_loop(files[:5], features)
+        ref_s = bare_loop(files, features)
+        start = time.perf_counter()
+        done = subprocess.run(
+            [
+                sys.executable,
+                "-m",
+                "slamcli",
+                "run",
+                "visual",
+                str(seq),
+                "--out",
+                str(Path(tmp) / "run"),
+            ],
+            capture_output=True,
+            text=True,
+        )
+        seconds = time.perf_counter() - start
+        if done.returncode != 0:
+            raise SystemExit(f"slamcli run visual failed:\n{done.stderr}")
+        info = json.loads((Path(tmp) / "run" / "run.json").read_text())
+    ate = info["metrics"]["evaluation"]["ate"]["rmse"]
+    print(f"\nthe whole command: synth rgbd, {len(files)} frames (640x480, noise)")
+    print(f"{'variant':<48}{'s':>10}{'x bare':>8}{'ATE rmse m':>12}")
+    print(f"{'bare loop (warm, in this process)':<48}{ref_s:>10.2f}{1:>8.2f}{'-':>12}")
+    label = "slamcli run visual (a new process)"
+    print(f"{label:<48}{seconds:>10.2f}{seconds / ref_s:>8.2f}{ate:>12.4f}")
+    ratio = seconds / ref_s
+    verdict = "meets" if ratio <= GOAL_COMMAND else "MISSES"
+    print(f"the command / bare loop: {ratio:.2f}x ({verdict} the goal <= {GOAL_COMMAND:.1f}x)")
 
 
 def measure(
@@ -158,7 +248,11 @@ def main() -> None:
     parser.add_argument("--stereo", type=Path, default=STEREO, help="a KITTI stereo folder")
     parser.add_argument("--frames", type=int, default=150)
     parser.add_argument("--repeat", type=int, default=1, help="best of R for each variant")
+    parser.add_argument(
+        "--long", type=int, default=600, help="frames of the rendered sequence (0: skip it)"
+    )
     args = parser.parse_args()
+    print(machine())
 
     from slamcli.pipelines.visual import VisualConfig
 
@@ -177,6 +271,8 @@ def main() -> None:
     lo, hi = ORB_SLAM3_MS
     verdict = "no slower than" if ms <= lo else "SLOWER than"
     print(f"stereo, threads=2: {ms:.1f} ms/frame, {verdict} ORB-SLAM3's {lo:.0f}-{hi:.0f} ms")
+    if args.long:
+        command(args.long)
 
 
 if __name__ == "__main__":
